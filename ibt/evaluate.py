@@ -1,0 +1,129 @@
+"""Episodes of any policy, returns and retention.
+
+:func:`rollout` runs whole episodes, several environments side by side so that every policy
+query is one batch; each episode starts from ``env.reset(seed=s)`` with its own seed, so a set
+of seeds fixes the episodes exactly. The seed ranges below keep training, best-tree selection
+and final evaluation episodes disjoint.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ibt.tasks import Task, get_task
+
+FINAL_SEED_BASE = 1_000_000  # final evaluation: the same episodes for every method and expert
+SELECTION_SEED_BASE = 2_000_000  # best-tree selection (held out from training and final)
+TRAIN_SEED_BASE = 3_000_000  # distillation rollouts
+
+
+def final_seeds(n: int) -> list[int]:
+    """The fixed episode seeds of final evaluations."""
+    return [FINAL_SEED_BASE + i for i in range(n)]
+
+
+def selection_seeds(n: int, run_seed: int) -> list[int]:
+    return [SELECTION_SEED_BASE + 10_000 * run_seed + i for i in range(n)]
+
+
+@dataclass
+class Rollout:
+    """What a batch of episodes produced, in seed order."""
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    final_infos: list[dict[str, Any]]
+    obs: list[np.ndarray] = field(default_factory=list)  # per step batch, when collected
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.returns))
+
+    @property
+    def std(self) -> float:
+        return float(np.std(self.returns))
+
+
+ActFn = Callable[[np.ndarray], np.ndarray]
+
+
+def rollout(task: str | Task, act: ActFn, seeds: Sequence[int], *, n_envs: int = 16,
+            collect: bool = False, budget: int | None = None,
+            env_kwargs: dict[str, Any] | None = None,
+            on_step: Callable[[np.ndarray, np.ndarray], None] | None = None) -> Rollout:
+    """Run one whole episode per seed with ``act`` (a batch of raw observations -> actions).
+
+    ``budget``: stop *starting* episodes once this many steps have been taken (running episodes
+    always finish; unused seeds are dropped). ``collect``: keep every observation batch.
+    ``on_step(obs, actions)`` sees each batch before it is stepped.
+    """
+    task = get_task(task)
+    seeds = list(seeds)
+    n_slots = max(1, min(n_envs, len(seeds)))
+    envs = [task.make_env(**(env_kwargs or {})) for _ in range(n_slots)]
+    returns = np.zeros(len(seeds))
+    lengths = np.zeros(len(seeds), dtype=np.int64)
+    infos: list[dict[str, Any]] = [{} for _ in seeds]
+    collected: list[np.ndarray] = []
+    slot_episode = [-1] * n_slots
+    slot_obs: list[Any] = [None] * n_slots
+    next_episode = 0
+    steps = 0
+
+    def start(slot: int) -> None:
+        nonlocal next_episode
+        if next_episode >= len(seeds) or (budget is not None and steps >= budget):
+            slot_episode[slot] = -1
+            return
+        slot_episode[slot] = next_episode
+        slot_obs[slot], _ = envs[slot].reset(seed=int(seeds[next_episode]))
+        next_episode += 1
+
+    for slot in range(n_slots):
+        start(slot)
+    try:
+        while True:
+            active = [s for s in range(n_slots) if slot_episode[s] >= 0]
+            if not active:
+                break
+            obs = np.stack([np.asarray(slot_obs[s]) for s in active])
+            actions = np.asarray(act(obs))
+            if on_step is not None:
+                on_step(obs, actions)
+            if collect:
+                collected.append(obs)
+            steps += len(active)
+            for s, action in zip(active, actions, strict=True):
+                ep = slot_episode[s]
+                slot_obs[s], reward, terminated, truncated, info = envs[s].step(int(action))
+                returns[ep] += float(reward)
+                lengths[ep] += 1
+                if terminated or truncated:
+                    infos[ep] = dict(info)
+                    start(s)
+    finally:
+        for env in envs:
+            env.close()
+    used = next_episode
+    return Rollout(returns[:used], lengths[:used], infos[:used], collected)
+
+
+def evaluate_policy(task: str | Task, policy: Any, seeds: Sequence[int], **kwargs: Any
+                    ) -> Rollout:
+    """Episodes of a policy (anything with ``act``) on the given seeds."""
+    return rollout(task, policy.act, seeds, **kwargs)
+
+
+def retention_raw(mean_return: float, expert_return: float) -> float:
+    """The paper's retention: mean return as a percentage of the expert's."""
+    return 100.0 * mean_return / expert_return
+
+
+def retention_norm(mean_return: float, expert_return: float, random_return: float) -> float:
+    """Random-normalised retention: 0 = random policy, 100 = expert (meaningful for negative
+    returns, where the raw percentage is not)."""
+    return 100.0 * (mean_return - random_return) / (expert_return - random_return)

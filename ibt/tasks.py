@@ -1,0 +1,179 @@
+"""The registry of tasks: the only place environment ids appear.
+
+A :class:`Task` names an environment's features and actions, maps raw observations to the
+feature vectors the trees see, and carries a box of plausible feature values used to sample
+random states when testing that a BT decides exactly as its tree. Users can add their own task
+with :func:`register_task`.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from ibt.paths import DATA_DIR
+
+
+@dataclass(frozen=True)
+class Task:
+    """One environment as Imitation-BT sees it."""
+
+    name: str
+    gym_id: str
+    feature_names: tuple[str, ...]
+    action_names: tuple[str, ...]
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    discrete_state: bool = False  # the observation is one integer (the state index)
+    integer_features: bool = False  # every feature takes integer values only
+    setup_module: str | None = None  # imported before gym.make (registers the env)
+    max_episode_steps: int | None = None
+
+    @property
+    def n_features(self) -> int:
+        return len(self.feature_names)
+
+    @property
+    def n_actions(self) -> int:
+        return len(self.action_names)
+
+    def make_env(self, **overrides: Any) -> gym.Env:
+        """A fresh environment (kwargs of the registry, updated by ``overrides``)."""
+        if self.setup_module:
+            __import__(self.setup_module)
+        kwargs = {**self.kwargs, **overrides}
+        if self.max_episode_steps is not None:
+            kwargs.setdefault("max_episode_steps", self.max_episode_steps)
+        return gym.make(self.gym_id, **kwargs)
+
+    def features(self, obs: np.ndarray) -> np.ndarray:
+        """Raw observations (a batch) -> float32 feature matrix ``(n, n_features)``."""
+        obs = np.asarray(obs)
+        if self.discrete_state:
+            return obs.reshape(-1, 1).astype(np.float32)
+        return obs.reshape(len(obs), -1).astype(np.float32)
+
+    def sample_features(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` random feature vectors from the task's box (integers for discrete states)."""
+        low, high = np.asarray(self.low), np.asarray(self.high)
+        if self.discrete_state or self.integer_features:
+            return rng.integers(low, high + 1, size=(n, len(low))).astype(np.float32)
+        return rng.uniform(low, high, size=(n, len(low))).astype(np.float32)
+
+    def random_return(self) -> float:
+        """Mean return of the uniform random policy (committed in data/experts/random.csv)."""
+        path = DATA_DIR / "experts" / "random.csv"
+        if path.exists():
+            with path.open() as fh:
+                for row in csv.DictReader(fh):
+                    if row["task"] == self.name:
+                        return float(row["mean_return"])
+        raise LookupError(f"no random-policy return for {self.name} in {path}; "
+                          "run `python -m ibt random-baselines` (or `make reproduce`)")
+
+
+TASKS: dict[str, Task] = {}
+
+
+def register_task(task: Task) -> Task:
+    """Add (or replace) a task in the registry; returns it."""
+    TASKS[task.name] = task
+    return task
+
+
+def get_task(name: str | Task) -> Task:
+    """Look a task up by name; unknown names get the closest known ones in the message."""
+    if isinstance(name, Task):
+        return name
+    try:
+        return TASKS[name]
+    except KeyError:
+        close = difflib.get_close_matches(name, TASKS, n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
+        raise KeyError(f"unknown task {name!r}.{hint} Known tasks: {', '.join(TASKS)}; "
+                       "add your own with ibt.tasks.register_task(...)") from None
+
+
+def _highway_features() -> tuple[str, ...]:
+    names = []
+    for vehicle in ["ego", "v1", "v2", "v3", "v4"]:
+        names += [f"{vehicle}_{k}" for k in ("presence", "x", "y", "vx", "vy")]
+    return tuple(names)
+
+
+register_task(Task(
+    name="CartPole-v1", gym_id="CartPole-v1",
+    feature_names=("cart_position", "cart_velocity", "pole_angle", "pole_angular_velocity"),
+    action_names=("push_left", "push_right"),
+    low=(-2.4, -3.0, -0.21, -3.5), high=(2.4, 3.0, 0.21, 3.5),
+))
+register_task(Task(
+    name="Acrobot-v1", gym_id="Acrobot-v1",
+    feature_names=("cos_theta1", "sin_theta1", "cos_theta2", "sin_theta2",
+                   "theta1_velocity", "theta2_velocity"),
+    action_names=("torque_neg", "torque_zero", "torque_pos"),
+    low=(-1, -1, -1, -1, -12.6, -28.3), high=(1, 1, 1, 1, 12.6, 28.3),
+))
+register_task(Task(
+    name="MountainCar-v0", gym_id="MountainCar-v0",
+    feature_names=("position", "velocity"),
+    action_names=("left", "no_push", "right"),
+    low=(-1.2, -0.07), high=(0.6, 0.07),
+))
+register_task(Task(
+    name="LunarLander-v3", gym_id="LunarLander-v3",
+    feature_names=("x", "y", "vx", "vy", "angle", "angular_velocity",
+                   "left_leg_contact", "right_leg_contact"),
+    action_names=("noop", "fire_left", "fire_main", "fire_right"),
+    low=(-1.5, -0.2, -2.0, -2.0, -3.14, -5.0, 0, 0), high=(1.5, 1.6, 2.0, 0.6, 3.14, 5.0, 1, 1),
+    setup_module="Box2D",
+))
+register_task(Task(
+    name="CliffWalking-v1", gym_id="CliffWalking-v1",
+    feature_names=("state",), action_names=("up", "right", "down", "left"),
+    low=(0,), high=(47,), discrete_state=True, integer_features=True,
+))
+register_task(Task(
+    name="FrozenLake-v1", gym_id="FrozenLake-v1", kwargs={"map_name": "4x4", "is_slippery": False},
+    feature_names=("state",), action_names=("left", "down", "right", "up"),
+    low=(0,), high=(15,), discrete_state=True, integer_features=True,
+))
+register_task(Task(
+    name="highway-fast-v0", gym_id="highway-fast-v0",
+    feature_names=_highway_features(),
+    action_names=("lane_left", "idle", "lane_right", "faster", "slower"),
+    low=(0, -1, -1, -1, -1) * 5, high=(1, 1, 1, 1, 1) * 5,
+    setup_module="highway_env",
+))
+
+
+def _package_delivery() -> Task:
+    from ibt.envs import package_delivery as pd
+
+    high = tuple(float(n - 1) for n in pd.PackageDeliveryEnv().observation_space.nvec)
+    return Task(
+        name="PackageDelivery-v0", gym_id="PackageDelivery-v0",
+        feature_names=tuple(pd.FEATURE_NAMES), action_names=tuple(pd.ACTION_NAMES),
+        low=(0.0,) * len(high), high=high, setup_module="ibt.envs", integer_features=True,
+    )
+
+
+try:  # the package-delivery domain is ours; register it when its module is present
+    register_task(_package_delivery())
+except ImportError:  # pragma: no cover - only while the module is being written
+    pass
+
+
+def task_names() -> list[str]:
+    return list(TASKS)
+
+
+def data_path(*parts: str) -> Path:
+    return DATA_DIR.joinpath(*parts)
