@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import json
 from collections import Counter
-from collections.abc import Iterator, Sequence as Seq
+from collections.abc import Iterator
+from collections.abc import Sequence as Seq
 from dataclasses import dataclass, field
 from typing import Any, Union
 
@@ -325,7 +326,7 @@ def to_py_trees(tree: BehaviorTree, features: np.ndarray | None = None):
             super().__init__(name)
             self.node = node
 
-        def update(self):  # noqa: ANN202 - py_trees signature
+        def update(self):
             value = as_features(np.asarray(io["features"]).reshape(-1))[self.node.feature]
             hit = value <= self.node.threshold if self.node.op == "<=" else (
                 value > self.node.threshold)
@@ -336,12 +337,12 @@ def to_py_trees(tree: BehaviorTree, features: np.ndarray | None = None):
             super().__init__(name)
             self.node = node
 
-        def update(self):  # noqa: ANN202
+        def update(self):
             if io["decision"] == NO_DECISION:
                 io["decision"] = self.node.action
             return Status.SUCCESS
 
-    def build(node: Node):  # noqa: ANN202
+    def build(node: Node):
         name = tree.label(node)
         if isinstance(node, Condition):
             return _Condition(name, node)

@@ -142,6 +142,13 @@ class Distillation:
         return int(sum(it["labels"] for it in self.iterations))
 
 
+def mix(expert_actions: np.ndarray, learner_actions: np.ndarray, beta: float,
+        rng: np.random.Generator) -> np.ndarray:
+    """The mixed policy's actions: per step, the expert's with probability ``beta``."""
+    use_expert = rng.random(len(expert_actions)) < beta
+    return np.where(use_expert, expert_actions, learner_actions)
+
+
 def _signature(tree: DecisionTreeClassifier) -> bytes:
     t = tree.tree_
     parts = [t.feature, t.threshold, t.children_left, t.children_right,
@@ -180,8 +187,7 @@ def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int =
             weights.append(weight)
             if learner is None or beta >= 1.0:
                 return expert_actions
-            use_expert = rng.random(len(obs)) < beta
-            return np.where(use_expert, expert_actions, learner.predict(features[-1]))
+            return mix(expert_actions, learner.predict(features[-1]), beta, rng)
 
         train_seeds = [TRAIN_SEED_BASE + 100_000 * seed + 1_000 * i + k for k in range(1_000)]
         rollout(task, act, train_seeds, n_envs=config.collect_envs,
@@ -219,6 +225,6 @@ def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int =
     return record
 
 
-def learner_policy(task: Task, compiled: CompiledTree):  # noqa: ANN201
+def learner_policy(task: Task, compiled: CompiledTree):
     """``act`` of a compiled tree on raw observations."""
     return lambda obs: compiled.predict(task.features(obs))

@@ -37,6 +37,7 @@ class Rollout:
     returns: np.ndarray
     lengths: np.ndarray
     final_infos: list[dict[str, Any]]
+    terminated: np.ndarray  # True where the episode ended in a terminal state (not a time limit)
     obs: list[np.ndarray] = field(default_factory=list)  # per step batch, when collected
 
     @property
@@ -68,6 +69,7 @@ def rollout(task: str | Task, act: ActFn, seeds: Sequence[int], *, n_envs: int =
     returns = np.zeros(len(seeds))
     lengths = np.zeros(len(seeds), dtype=np.int64)
     infos: list[dict[str, Any]] = [{} for _ in seeds]
+    terminal = np.zeros(len(seeds), dtype=bool)
     collected: list[np.ndarray] = []
     slot_episode = [-1] * n_slots
     slot_obs: list[Any] = [None] * n_slots
@@ -104,18 +106,35 @@ def rollout(task: str | Task, act: ActFn, seeds: Sequence[int], *, n_envs: int =
                 lengths[ep] += 1
                 if terminated or truncated:
                     infos[ep] = dict(info)
+                    terminal[ep] = bool(terminated)
                     start(s)
     finally:
         for env in envs:
             env.close()
     used = next_episode
-    return Rollout(returns[:used], lengths[:used], infos[:used], collected)
+    return Rollout(returns[:used], lengths[:used], infos[:used], terminal[:used], collected)
 
 
 def evaluate_policy(task: str | Task, policy: Any, seeds: Sequence[int], **kwargs: Any
                     ) -> Rollout:
     """Episodes of a policy (anything with ``act``) on the given seeds."""
     return rollout(task, policy.act, seeds, **kwargs)
+
+
+def episode_metrics(task: str | Task, result: Rollout) -> dict[str, float]:
+    """Task-specific outcome rates beside the return (success, collisions, battery failures)."""
+    name = get_task(task).name
+    out: dict[str, float] = {}
+    if name == "FrozenLake-v1":
+        out["success_rate"] = float(np.mean(result.returns > 0))
+    elif name == "CliffWalking-v1":
+        out["success_rate"] = float(np.mean(result.terminated))
+    elif name == "highway-fast-v0":
+        out["collision_rate"] = float(np.mean([bool(i.get("crashed")) for i in result.final_infos]))
+    elif name == "PackageDelivery-v0":
+        out["battery_failure_rate"] = float(
+            np.mean([bool(i.get("battery_failure")) for i in result.final_infos]))
+    return out
 
 
 def retention_raw(mean_return: float, expert_return: float) -> float:

@@ -83,7 +83,7 @@ def _run_espresso(ninputs: int, on: list[tuple[int, ...]], dc: list[tuple[int, .
     return sorted(inputs for inputs, _ in result)
 
 
-def _espresso_child(conn, ninputs, on, dc) -> None:  # noqa: ANN001 - process entry point
+def _espresso_child(conn, ninputs, on, dc) -> None:
     conn.send(_run_espresso(ninputs, on, dc))
     conn.close()
 

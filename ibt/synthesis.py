@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 from sklearn.tree import DecisionTreeClassifier
 
 from ibt.bt import Action, BehaviorTree, Condition, Fallback, Node, Selector, Sequence
@@ -120,6 +121,19 @@ def imitation_bt(tree: DecisionTreeClassifier, task: Task, *,
     if check:
         verify(bt, tree, task, seed=rng_seed)
     return result
+
+
+def rules_frame(result: Synthesis) -> pd.DataFrame:
+    """The minimised rule sets as a table: action, k, rule text, and which is the default."""
+    bt = result.bt
+    rows = []
+    for rs in result.rule_sets:
+        text = " OR ".join("(" + " and ".join(
+            f"{bt.feature_names[lit.feature]} {lit.op} {lit.threshold:.4g}" for lit in term)
+            + ")" if term else "(always)" for term in rs.terms)
+        rows.append({"action": bt.action_names[rs.action], "k": rs.k, "terms": len(rs.terms),
+                     "default": rs.action == result.default_action, "rule": text})
+    return pd.DataFrame(rows)
 
 
 def _k_of(sets: list[RuleSet], action: int) -> int:

@@ -138,7 +138,7 @@ register_task(Task(
 register_task(Task(
     name="CliffWalking-v1", gym_id="CliffWalking-v1",
     feature_names=("state",), action_names=("up", "right", "down", "left"),
-    low=(0,), high=(47,), discrete_state=True, integer_features=True,
+    low=(0,), high=(47,), discrete_state=True, integer_features=True, max_episode_steps=100,
 ))
 register_task(Task(
     name="FrozenLake-v1", gym_id="FrozenLake-v1", kwargs={"map_name": "4x4", "is_slippery": False},
