@@ -5,7 +5,6 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 NOTEBOOKS := $(sort $(wildcard notebooks/[0-9]*.ipynb))
-export MPLBACKEND := Agg
 export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from ibt import schedules
 from ibt.evaluate import TRAIN_SEED_BASE, rollout, selection_seeds

@@ -230,6 +230,11 @@ def load_expert(task: str | Task, algo: str, path: str | Path | None = None) -> 
 
 @functools.lru_cache(maxsize=64)
 def _load_cached(task_name: str, algo: str, path: str, _mtime: int, _size: int) -> Expert:
+    import torch
+
+    # Experts answer small batches: torch's thread pool only adds overhead (and contention when
+    # processes run side by side), and one thread keeps results bit-identical across runs.
+    torch.set_num_threads(1)
     task = get_task(task_name)
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path} is not a Stable-Baselines3 checkpoint (not a zip archive); "

@@ -48,7 +48,8 @@ def to_graphviz(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
     (green success, red failure) for trace views."""
     import graphviz
 
-    graph = graphviz.Digraph(graph_attr={"rankdir": "TB", "nodesep": "0.25", "ranksep": "0.35"},
+    graph = graphviz.Digraph(graph_attr={"rankdir": "TB", "nodesep": "0.25", "ranksep": "0.35",
+                                         "ordering": "out"},
                              node_attr={"fontname": "Helvetica", "fontsize": "11"})
     nodes = list(iterate(bt.root))
     index = {id(n): i for i, n in enumerate(nodes)}

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from ibt.artifacts import atomic_write_csv, file_digest
 from ibt.evaluate import episode_metrics, final_seeds, rollout
