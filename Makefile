@@ -49,7 +49,7 @@ lint: setup ## ruff over the package, tests and notebooks
 
 test: setup lint ## ruff + unit/property tests + every notebook under the smoke profile (nbval)
 	$(BIN)/python -m pytest -m "not slow" -q
-	IBT_PROFILE=smoke $(BIN)/python -m pytest --nbval-lax -q -p no:randomly notebooks
+	IBT_PROFILE=smoke $(BIN)/python -m pytest --nbval-lax -q notebooks
 
 test-slow: setup ## the slow tests too (training determinism, full-size runs)
 	$(BIN)/python -m pytest -q

@@ -6,6 +6,12 @@ The data flow, one module per step: ``tasks`` (environments) -> ``experts`` (SB3
 Importing ``ibt`` registers the package-delivery environment with gymnasium.
 """
 
+import os
+
+# Headless rendering: pygame (used by gymnasium's and highway-env's renderers) needs no display.
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+
 from ibt import envs  # noqa: F401  (registers PackageDelivery-v0)
 from ibt.bt import BehaviorTree, tick
 from ibt.config import config

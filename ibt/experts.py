@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import shutil
 import tempfile
 import time
 import zipfile
@@ -273,10 +274,24 @@ def atomic_save_model(model: Any, path: Path) -> None:
             os.unlink(tmp)
 
 
+EVAL_POINTS = 20  # checkpoints evaluated during training (the best one is kept)
+EVAL_EPISODES = 10
+
+
+def _final_score(callback: Any) -> float:
+    """Mean reward of the callback's last evaluation (the final model's, approximately)."""
+    results = getattr(callback, "evaluations_results", None)
+    return float(np.mean(results[-1])) if results else -np.inf
+
+
 def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
                  seed: int = 0, timesteps: int | None = None, progress: bool = True
                  ) -> dict[str, Any]:
     """Train an expert with its table hyperparameters and save it atomically to ``path``.
+
+    Without observation normalisation, the model is evaluated at 20 points during training (10
+    episodes each, on their own seeds) and the best checkpoint is kept: DQN in particular can
+    collapse late in training.
 
     Returns facts for the manifest (timesteps, seed, wall seconds, hyperparameter source).
     """
@@ -298,8 +313,22 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     policy_kwargs = {"net_arch": list(hp.net_arch)}
     model = _sb3_class(algo)("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
                              policy_kwargs=policy_kwargs, **kwargs)
-    model.learn(total_timesteps=steps, progress_bar=progress)
+    callback = None
+    if not hp.normalize:  # keep the best checkpoint: value-based training is not monotone
+        from stable_baselines3.common.callbacks import EvalCallback
+
+        eval_env = make_vec_env(lambda: task.make_env(), n_envs=1, seed=seed + 10_000)
+        scratch = tempfile.mkdtemp(prefix="ibt-train-")
+        callback = EvalCallback(eval_env, n_eval_episodes=EVAL_EPISODES,
+                                eval_freq=max(steps // EVAL_POINTS // hp.n_envs, 1),
+                                deterministic=True, best_model_save_path=scratch, verbose=0)
+    model.learn(total_timesteps=steps, progress_bar=progress, callback=callback)
     wall = time.perf_counter() - start
+    if callback is not None:
+        best = Path(callback.best_model_save_path) / "best_model.zip"
+        if best.exists() and callback.best_mean_reward > _final_score(callback):
+            model = _sb3_class(algo).load(best, device="cpu")
+        shutil.rmtree(callback.best_model_save_path, ignore_errors=True)
     atomic_save_model(model, path)
     norm_file = _norm_path(path)
     if hp.normalize:

@@ -11,6 +11,7 @@ import tempfile
 from pathlib import Path
 
 import matplotlib.pyplot as plt
+import numpy as np
 import pandas as pd
 
 plt.rcParams.update({"figure.dpi": 110, "savefig.dpi": 150, "axes.spines.top": False,
@@ -55,6 +56,22 @@ def distillation_history(history: pd.DataFrame, title: str = "", path: str | Pat
     beta_ax.set_ylim(0, 1.05)
     ax.legend(loc="lower left", fontsize=8)
     ax.set_title(title)
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig
+
+
+def task_frames(frames: dict[str, np.ndarray], path: str | Path | None = None,
+                columns: int = 4) -> plt.Figure:
+    """A grid of rendered frames, one per task (``{task: rgb array}``)."""
+    rows = -(-len(frames) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns, 2.6 * rows), squeeze=False)
+    for ax in axes.flat:
+        ax.axis("off")
+    for ax, (name, frame) in zip(axes.flat, frames.items(), strict=False):
+        ax.imshow(frame)
+        ax.set_title(name, fontsize=9)
     fig.tight_layout()
     if path is not None:
         save_figure(fig, path)

@@ -53,6 +53,20 @@ class Task:
             kwargs.setdefault("max_episode_steps", self.max_episode_steps)
         return gym.make(self.gym_id, **kwargs)
 
+    def render_frame(self, seed: int = 0, steps: int = 5) -> np.ndarray:
+        """An RGB frame a few random steps after a seeded reset (for figures)."""
+        env = self.make_env(render_mode="rgb_array")
+        try:
+            env.reset(seed=seed)
+            env.action_space.seed(seed)
+            for _ in range(steps):
+                _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+                if terminated or truncated:
+                    env.reset(seed=seed)
+            return np.asarray(env.render())
+        finally:
+            env.close()
+
     def features(self, obs: np.ndarray) -> np.ndarray:
         """Raw observations (a batch) -> float32 feature matrix ``(n, n_features)``."""
         obs = np.asarray(obs)

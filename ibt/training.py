@@ -151,6 +151,22 @@ def expert_manifest(task: str | None = None, algo: str | None = None,
     return frame
 
 
+def expert_table(root: Path | None = None) -> pd.DataFrame:
+    """The experts beside the random policy and their quality bars (one row per expert)."""
+    root = root or DATA_DIR / "experts"
+    manifest = _read_manifest(root / "manifest.csv")
+    random_file = root / "random.csv"
+    if random_file.exists():
+        rnd = pd.read_csv(random_file)[["task", "mean_return"]]
+        manifest = manifest.merge(rnd.rename(columns={"mean_return": "random_return"}),
+                                  on="task", how="left")
+    keep = ["task", "algo", "timesteps", "net_arch", "mean_return", "std_return",
+            "success_rate", "collision_rate", "battery_failure_rate", "random_return", "bar",
+            "meets_bar", "note", "wall_seconds"]
+    table = manifest.reindex(columns=[c for c in keep if c in manifest.columns])
+    return table.dropna(axis=1, how="all").reset_index(drop=True)
+
+
 def expert_return(task: str, algo: str, root: Path | None = None) -> float:
     """The committed expert's mean return (from the manifest)."""
     manifest = _read_manifest((root or DATA_DIR / "experts") / "manifest.csv")
