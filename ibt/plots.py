@@ -76,3 +76,80 @@ def task_frames(frames: dict[str, np.ndarray], path: str | Path | None = None,
     if path is not None:
         save_figure(fig, path)
     return fig
+
+
+METHOD_ORDER = ("bc", "dagger", "viper", "imitation-bt", "bt-espresso", "re-bt-espresso")
+METHOD_COLORS = {"bc": "#9e9e9e", "dagger": "#6baed6", "viper": "#3182bd",
+                 "imitation-bt": "#e6550d", "bt-espresso": "#a1d99b", "re-bt-espresso": "#31a354"}
+
+
+def retention_grid(summary: pd.DataFrame, value: str = "retention_norm",
+                   path: str | Path | None = None) -> plt.Figure:
+    """Fig. 4: mean retention (95 % bootstrap CI) per task and method, one panel per expert.
+
+    ``summary`` is :func:`ibt.experiments.summarise` output (columns task, expert, method,
+    ``value``, ci_low, ci_high).
+    """
+    experts = [e for e in ("dqn", "ppo", "a2c") if e in set(summary["expert"])]
+    tasks = list(dict.fromkeys(summary["task"]))
+    methods = [m for m in METHOD_ORDER if m in set(summary["method"])]
+    fig, axes = plt.subplots(len(experts), 1, figsize=(max(7, 1.3 * len(tasks)),
+                                                         2.6 * len(experts)),
+                             squeeze=False, sharex=True)
+    width = 0.8 / len(methods)
+    for ax, expert in zip(axes[:, 0], experts, strict=True):
+        part = summary[summary["expert"] == expert].set_index(["task", "method"])
+        for k, method in enumerate(methods):
+            xs, ys, lo, hi = [], [], [], []
+            for i, task in enumerate(tasks):
+                if (task, method) in part.index:
+                    row = part.loc[(task, method)]
+                    xs.append(i - 0.4 + width * (k + 0.5))
+                    ys.append(row[value])
+                    lo.append(row[value] - row["ci_low"])
+                    hi.append(row["ci_high"] - row[value])
+            ax.bar(xs, ys, width, yerr=[lo, hi], capsize=2, label=method,
+                   color=METHOD_COLORS.get(method), edgecolor="white", linewidth=0.5)
+        ax.axhline(100, color="black", lw=0.8, ls=":")
+        ax.set_ylabel(f"{expert.upper()} expert\nretention (%)")
+        ax.set_ylim(min(0, float(np.nanmin(summary[value])) - 5), 115)
+    axes[-1, 0].set_xticks(range(len(tasks)), tasks, rotation=20, ha="right")
+    axes[0, 0].legend(ncol=len(methods), fontsize=8, loc="lower center",
+                      bbox_to_anchor=(0.5, 1.02), frameon=False)
+    label = "random-normalised" if value == "retention_norm" else "raw"
+    fig.suptitle(f"Performance retention ({label}: 0 = random policy, 100 = expert)", y=1.04,
+                 fontsize=10)
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig
+
+
+def beta_analysis(curves: pd.DataFrame, results: pd.DataFrame, path: str | Path | None = None
+                  ) -> plt.Figure:
+    """Fig. 3: beta schedules (left) and the final returns of each schedule's trials (right).
+
+    ``curves``: columns schedule, iteration, beta. ``results``: columns schedule, mean_return.
+    """
+    order = list(dict.fromkeys(curves["schedule"]))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 3.8),
+                                      gridspec_kw={"width_ratios": [1, 1.4]})
+    cmap = plt.get_cmap("viridis")
+    for k, name in enumerate(order):
+        part = curves[curves["schedule"] == name]
+        style = {"color": "#e6550d", "lw": 2.5} if name == "linear" else {
+            "color": cmap(k / max(1, len(order) - 1)), "lw": 1}
+        left.plot(part["iteration"], part["beta"], label=name, **style)
+    left.set_xlabel("iteration i")
+    left.set_ylabel("beta_i (probability the expert acts)")
+    left.legend(fontsize=7, ncol=2)
+    data = [results.loc[results["schedule"] == name, "mean_return"].to_numpy() for name in order]
+    right.boxplot(data, tick_labels=order, showmeans=True)
+    for k, values in enumerate(data, start=1):
+        right.plot(np.full(len(values), k), values, "o", ms=3, alpha=0.6, color="black")
+    right.set_ylabel("final mean return (100 episodes)")
+    right.tick_params(axis="x", rotation=45)
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig

@@ -8,6 +8,7 @@ expert in progress. ``random_baselines`` writes ``data/experts/random.csv``.
 
 from __future__ import annotations
 
+import fcntl
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -85,7 +86,17 @@ def _read_manifest(path: Path) -> pd.DataFrame:
 
 
 def record(row: dict[str, Any], manifest: Path) -> None:
-    """Insert or replace the (task, algo) row of the manifest, atomically."""
+    """Insert or replace the (task, algo) row of the manifest, atomically.
+
+    A lock file serialises concurrent writers (several training queues may run at once).
+    """
+    manifest.parent.mkdir(parents=True, exist_ok=True)
+    with open(manifest.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        _record_locked(row, manifest)
+
+
+def _record_locked(row: dict[str, Any], manifest: Path) -> None:
     frame = _read_manifest(manifest)
     frame = frame[~((frame["task"] == row["task"]) & (frame["algo"] == row["algo"]))]
     frame = pd.concat([frame, pd.DataFrame([row])], ignore_index=True)

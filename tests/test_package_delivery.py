@@ -249,7 +249,7 @@ def test_spawning_probabilities() -> None:
 
 def test_rgb_render() -> None:
     env = PackageDeliveryEnv(render_mode="rgb_array")
-    obs, _ = env.reset(seed=0)
+    env.reset(seed=0)
     img = env.render()
     assert isinstance(img, np.ndarray)
     assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8
