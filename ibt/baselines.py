@@ -67,7 +67,7 @@ ROUND_DECIMALS = 3  # RE:BT-Espresso's threshold rounding for symbol keys
 
 @dataclass(frozen=True)
 class Symbol:
-    """One boolean symbol: ``x[feature] <= threshold``; ``nodes`` are the tree nodes it stands for."""
+    """A boolean symbol ``x[feature] <= threshold``; ``nodes`` are the tree nodes it stands for."""
 
     feature: int
     threshold: float

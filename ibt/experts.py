@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ibt.paths import DATA_DIR
-from ibt.tasks import Task, get_task
+from ibt.tasks import Task, get_task, resolve_task
 
 ALGOS = ("dqn", "ppo", "a2c")
 NET_ARCH = (64, 64)  # the paper's 2x64 MLP
@@ -236,7 +236,7 @@ def _load_cached(task_name: str, algo: str, path: str, _mtime: int, _size: int) 
     # Experts answer small batches: torch's thread pool only adds overhead (and contention when
     # processes run side by side), and one thread keeps results bit-identical across runs.
     torch.set_num_threads(1)
-    task = get_task(task_name)
+    task = resolve_task(task_name)
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path} is not a Stable-Baselines3 checkpoint (not a zip archive); "
                          f"delete it and retrain with `python -m ibt train {task.name} {algo}`")

@@ -185,6 +185,48 @@ except ImportError:  # pragma: no cover - only while the module is being written
     pass
 
 
+def task_from_env(gym_id: str, **kwargs: Any) -> Task:
+    """A task for any gymnasium env with a flat Box (or Discrete) observation and discrete actions.
+
+    Features are named ``x0, x1, ...`` and actions ``a0, a1, ...``; register a :class:`Task`
+    yourself for readable names. Raises ``KeyError`` for an unknown env id and ``ValueError``
+    for spaces Imitation-BT cannot handle.
+    """
+    if gym_id in TASKS:
+        return TASKS[gym_id]
+    try:
+        env = gym.make(gym_id, **kwargs)
+    except gym.error.Error as err:
+        raise KeyError(f"unknown environment id {gym_id!r} ({err}); registered tasks: "
+                       f"{', '.join(TASKS)}") from None
+    obs_space, act_space = env.observation_space, env.action_space
+    env.close()
+    if not isinstance(act_space, gym.spaces.Discrete):
+        raise ValueError(f"{gym_id} has actions {act_space}; Imitation-BT needs a Discrete "
+                         "action space")
+    actions = tuple(f"a{i}" for i in range(int(act_space.n)))
+    if isinstance(obs_space, gym.spaces.Discrete):
+        return Task(gym_id, gym_id, ("state",), actions, (0,), (int(obs_space.n) - 1,),
+                    kwargs=kwargs, discrete_state=True, integer_features=True)
+    if not isinstance(obs_space, gym.spaces.Box):
+        raise ValueError(f"{gym_id} observes {obs_space}; Imitation-BT needs a Box or Discrete "
+                         "observation space")
+    low = np.clip(obs_space.low.reshape(-1), -10, 10)
+    high = np.clip(obs_space.high.reshape(-1), -10, 10)
+    names = tuple(f"x{i}" for i in range(len(low)))
+    return Task(gym_id, gym_id, names, actions, tuple(map(float, low)), tuple(map(float, high)),
+                kwargs=kwargs)
+
+
+def resolve_task(name: str) -> Task:
+    """A registered task, else one built from a gymnasium env id (:func:`task_from_env`)."""
+    if name in TASKS:
+        return TASKS[name]
+    if name in gym.registry:
+        return task_from_env(name)
+    return get_task(name)  # raises with the closest registered names
+
+
 def task_names() -> list[str]:
     return list(TASKS)
 
