@@ -190,7 +190,7 @@ def _guard(common: Term, terms: list[Term], action: int) -> Node:
 
 def _finish(root: Node, method: str, rule_sets: list[RuleSet], tree: DecisionTreeClassifier,
             task: Task, check: bool) -> Synthesis:
-    bt = BehaviorTree(root, task.feature_names, task.action_names)
+    bt = BehaviorTree(root, task.feature_names, task.action_names, task.value_labels)
     if check:
         verify(bt, tree, task)
     return Synthesis(bt, method, default_action=None, default_strategy=None,

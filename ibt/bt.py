@@ -103,6 +103,9 @@ class BehaviorTree:
     root: Node
     feature_names: tuple[str, ...]
     action_names: tuple[str, ...]
+    # labels of categorical features' integer values 0..k-1 ({feature index: labels}); only
+    # used to print conditions readably (``carrying == heavy``), never to decide
+    value_labels: tuple[tuple[int, tuple[str, ...]], ...] = ()
 
     def nodes(self) -> Iterator[Node]:
         """All nodes, depth first, root included (the order of py_trees' ``iterate``)."""
@@ -125,13 +128,19 @@ class BehaviorTree:
     def label(self, node: Node, precision: int = 4) -> str:
         """A readable label: ``pole_angle <= 0.05``, ``push_right``, ``Sequence``."""
         if isinstance(node, Condition):
-            return f"{self.feature_names[node.feature]} {node.op} {_fmt(node.threshold, precision)}"
+            name = self.feature_names[node.feature]
+            labels = dict(self.value_labels).get(node.feature)
+            if labels:
+                return _categorical_label(name, labels, node)
+            return f"{name} {node.op} {_fmt(node.threshold, precision)}"
         if isinstance(node, Action):
             return self.action_names[node.action]
         return type(node).__name__
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON document of ``data/trees/`` (see :func:`from_dict`)."""
+        extra = ({"value_labels": {self.feature_names[f]: list(v) for f, v in self.value_labels}}
+                 if self.value_labels else {})
         return {
             "format": "ibt-behavior-tree/1",
             "feature_names": list(self.feature_names),
@@ -141,6 +150,7 @@ class BehaviorTree:
                 "succeeds and is the decision; selector/fallback succeed at the first success; "
                 "sequence fails at the first failure; inverter flips"
             ),
+            **extra,
             "root": node_to_dict(self.root),
         }
 
@@ -150,10 +160,14 @@ class BehaviorTree:
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> BehaviorTree:
         try:
+            names = tuple(doc["feature_names"])
+            labels = tuple((names.index(f), tuple(v))
+                           for f, v in doc.get("value_labels", {}).items())
             tree = cls(
                 root=node_from_dict(doc["root"]),
-                feature_names=tuple(doc["feature_names"]),
+                feature_names=names,
                 action_names=tuple(doc["action_names"]),
+                value_labels=labels,
             )
         except KeyError as err:
             raise ValueError(f"behavior-tree JSON lacks the key {err}; expected "
@@ -174,6 +188,19 @@ class BehaviorTree:
             if isinstance(node, Action) and not 0 <= node.action < len(self.action_names):
                 raise ValueError(f"action {node.action}, but the tree names "
                                  f"{len(self.action_names)} actions")
+
+
+def _categorical_label(name: str, labels: tuple[str, ...], node: Condition) -> str:
+    """``carrying == heavy`` / ``location in {depot, zone_a}`` for integer-coded categories."""
+    cut = int(np.floor(node.threshold))  # x <= t  <=>  x in 0..cut for integer x
+    below, above = labels[: cut + 1], labels[cut + 1:]
+    chosen = below if node.op == "<=" else above
+    other = above if node.op == "<=" else below
+    if len(chosen) == 1:
+        return f"{name} == {chosen[0]}"
+    if len(other) == 1:
+        return f"{name} != {other[0]}"
+    return f"{name} in {{{', '.join(chosen)}}}"
 
 
 def _fmt(value: float, precision: int) -> str:

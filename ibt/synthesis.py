@@ -116,7 +116,8 @@ def imitation_bt(tree: DecisionTreeClassifier, task: Task, *,
     else:
         default = min((rs.action for rs in sets),
                       key=lambda a: (_node_total(assemble(sets, a)), -_k_of(sets, a)))
-    bt = BehaviorTree(assemble(sets, default), task.feature_names, task.action_names)
+    bt = BehaviorTree(assemble(sets, default), task.feature_names, task.action_names,
+                      task.value_labels)
     result = Synthesis(bt, "imitation-bt", default, default_strategy, tuple(sets))
     if check:
         verify(bt, tree, task, seed=rng_seed)

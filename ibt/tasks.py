@@ -35,6 +35,7 @@ class Task:
     integer_features: bool = False  # every feature takes integer values only
     setup_module: str | None = None  # imported before gym.make (registers the env)
     max_episode_steps: int | None = None
+    value_labels: tuple[tuple[int, tuple[str, ...]], ...] = ()  # categorical feature labels
 
     @property
     def n_features(self) -> int:
@@ -176,6 +177,8 @@ def _package_delivery() -> Task:
         name="PackageDelivery-v0", gym_id="PackageDelivery-v0",
         feature_names=tuple(pd.FEATURE_NAMES), action_names=tuple(pd.ACTION_NAMES),
         low=(0.0,) * len(high), high=high, setup_module="ibt.envs", integer_features=True,
+        value_labels=tuple((pd.FEATURE_NAMES.index(f), tuple(v))
+                           for f, v in pd.FEATURE_VALUES.items()),
     )
 
 

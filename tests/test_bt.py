@@ -110,3 +110,14 @@ def test_vectorised_executor_agrees_with_py_trees(states):
     root, io = to_py_trees(TREE)
     assert np.array_equal(py_trees_decide(root, io, x), TREE.decide(x))
     assert [tick(TREE, row)[0] for row in x] == TREE.decide(x).tolist()
+
+
+def test_categorical_labels_read_as_categories():
+    labels = ((1, ("none", "light", "heavy")),)
+    tree = BehaviorTree(Selector((Action(0),)), ("battery", "carrying"), ("go", "stay"), labels)
+    # Expect: thresholds between integer codes read as set membership of the labels
+    assert tree.label(Condition(1, ">", 1.5)) == "carrying == heavy"
+    assert tree.label(Condition(1, "<=", 0.5)) == "carrying == none"
+    assert tree.label(Condition(1, "<=", 1.5)) == "carrying != heavy"
+    assert tree.label(Condition(0, "<=", 2.5)) == "battery <= 2.5"
+    assert BehaviorTree.from_json(tree.to_json()) == tree
