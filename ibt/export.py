@@ -88,3 +88,12 @@ def save_drawing(graph, stem: str | Path, formats: tuple[str, ...] = ("svg", "pn
             os.replace(out, target)
         written.append(target)
     return written
+
+
+def trace_graph(bt: BehaviorTree, state, precision: int = 4):
+    """The drawing of one tick: ticked nodes outlined green (success) or red (failure)."""
+    from ibt.bt import tick
+
+    _, trace = tick(bt, state)
+    return to_graphviz(bt, highlight={step.index: step.success for step in trace},
+                       precision=precision)
