@@ -43,17 +43,14 @@ def _random(args: argparse.Namespace) -> int:
 
 def save_tree_file(path: str | Path, tree: Any, task_name: str, info: dict[str, Any]) -> Path:
     """A decision tree with what it needs to be read again: task, names, run facts."""
-    from ibt.artifacts import atomic_write_bytes
+    from ibt.artifacts import atomic_target
     from ibt.tasks import resolve_task
 
     task = resolve_task(task_name)
     path = Path(path)
-    import io
-
-    buffer = io.BytesIO()
-    joblib.dump({"tree": tree, "task": task.name, "feature_names": task.feature_names,
-                 "action_names": task.action_names, **info}, buffer)
-    atomic_write_bytes(path, buffer.getvalue())
+    with atomic_target(path) as tmp:
+        joblib.dump({"tree": tree, "task": task.name, "feature_names": task.feature_names,
+                     "action_names": task.action_names, **info}, tmp)
     return path
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import functools
 import json
-import os
 import shutil
 import tempfile
 import time
@@ -25,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from ibt.artifacts import atomic_target, atomic_write_text
 from ibt.paths import DATA_DIR
 from ibt.tasks import Task, get_task, resolve_task
 
@@ -262,16 +262,8 @@ def _load_cached(task_name: str, algo: str, path: str, _mtime: int, _size: int) 
 
 def atomic_save_model(model: Any, path: Path) -> None:
     """Save an SB3 model via a temporary file and a rename (no half-written checkpoint)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".zip", dir=path.parent, prefix=f".{path.stem}.")
-    os.close(fd)
-    try:
+    with atomic_target(path) as tmp:
         model.save(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 EVAL_POINTS = 20  # checkpoints evaluated during training (the best one is kept)
@@ -334,9 +326,7 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     if hp.normalize:
         stats = {"mean": venv.obs_rms.mean.tolist(), "var": venv.obs_rms.var.tolist(),
                  "epsilon": float(venv.epsilon), "clip": float(venv.clip_obs)}
-        tmp = norm_file.with_suffix(".tmp")
-        tmp.write_text(json.dumps(stats))
-        os.replace(tmp, norm_file)
+        atomic_write_text(norm_file, json.dumps(stats))
     elif norm_file.exists():
         norm_file.unlink()
     venv.close()

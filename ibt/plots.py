@@ -6,13 +6,13 @@ PDF and PNG atomically.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+
+from ibt.artifacts import atomic_target
 
 plt.rcParams.update({"figure.dpi": 110, "savefig.dpi": 150, "axes.spines.top": False,
                      "axes.spines.right": False, "font.size": 10})
@@ -26,16 +26,9 @@ def save_figure(fig: plt.Figure, path: str | Path, formats: tuple[str, ...] = ("
     written = []
     for fmt in formats:
         target = path.with_suffix(f".{fmt}")
-        fd, tmp = tempfile.mkstemp(suffix=f".{fmt}", dir=path.parent, prefix=f".{path.name}.")
-        os.close(fd)
-        try:
-            metadata = {"CreationDate": None} if fmt == "pdf" else {}
-            fig.savefig(tmp, format=fmt, bbox_inches="tight", metadata=metadata or None)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, target)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        metadata = {"CreationDate": None} if fmt == "pdf" else None
+        with atomic_target(target) as tmp:
+            fig.savefig(tmp, format=fmt, bbox_inches="tight", metadata=metadata)
         written.append(target)
     return written
 
