@@ -189,14 +189,21 @@ class Expert:
     def scores(self, obs: np.ndarray) -> np.ndarray:
         """``(batch, n_actions)``: Q-values (DQN) or log pi(a|s) (PPO, A2C)."""
         import torch
+        from stable_baselines3.common.policies import BaseModel
 
         with torch.no_grad():
             tensor = self._obs_tensor(obs)
+            policy = self.model.policy
             if self.algo == "dqn":
-                out = self.model.policy.q_net(tensor)
+                out = policy.q_net(tensor)
             else:
-                dist = self.model.policy.get_distribution(tensor)
-                out = torch.log_softmax(dist.distribution.logits, dim=-1)
+                # policy.get_distribution(tensor), without building a Categorical (its argument
+                # validation costs more than the network); the same operations in the same
+                # order, so the numbers are bit-identical
+                features = BaseModel.extract_features(policy, tensor, policy.pi_features_extractor)
+                logits = policy.action_net(policy.mlp_extractor.forward_actor(features))
+                logits = logits - logits.logsumexp(dim=-1, keepdim=True)
+                out = torch.log_softmax(logits, dim=-1)
         return out.cpu().numpy().astype(np.float64).reshape(-1, self.n_actions)
 
     def act(self, obs: np.ndarray) -> np.ndarray:

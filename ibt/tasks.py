@@ -50,6 +50,9 @@ class Task:
         if self.setup_module:
             __import__(self.setup_module)
         kwargs = {**self.kwargs, **overrides}
+        # gymnasium's passive checker only warns, once per env; skipping it saves a wrapper
+        # call on every step of every rollout
+        kwargs.setdefault("disable_env_checker", True)
         if self.max_episode_steps is not None:
             kwargs.setdefault("max_episode_steps", self.max_episode_steps)
         return gym.make(self.gym_id, **kwargs)

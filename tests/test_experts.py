@@ -45,3 +45,26 @@ def test_random_baselines_cover_every_task():
     assert set(TASKS) <= set(random.task)
     for name in TASKS:
         assert np.isfinite(get_task(name).random_return())
+
+
+@pytest.mark.slow
+def test_training_is_deterministic(tmp_path):
+    from ibt.experts import train_expert
+
+    a, b = tmp_path / "a.zip", tmp_path / "b.zip"
+    for path in (a, b):
+        train_expert("CartPole-v1", "ppo", path, timesteps=2048, progress=False)
+    obs = np.random.default_rng(0).uniform(-0.2, 0.2, size=(50, 4)).astype(np.float32)
+    assert np.array_equal(load_expert("CartPole-v1", "ppo", a).scores(obs),
+                          load_expert("CartPole-v1", "ppo", b).scores(obs))
+
+
+def test_fast_scores_match_sb3_distribution():
+    import torch
+
+    expert = load_expert("CartPole-v1", "ppo")
+    obs = np.random.default_rng(1).uniform(-0.2, 0.2, size=(32, 4)).astype(np.float32)
+    with torch.no_grad():
+        dist = expert.model.policy.get_distribution(expert._obs_tensor(obs))
+        reference = torch.log_softmax(dist.distribution.logits, dim=-1).numpy()
+    assert np.array_equal(expert.scores(obs), reference.astype(np.float64))
