@@ -13,6 +13,7 @@ import os
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,7 @@ from ibt.evaluate import episode_metrics, final_seeds, retention_norm, retention
 from ibt.experts import expert_path, load_expert
 from ibt.pipeline import distill_cached
 from ibt.policies import CompiledTree
+from ibt.schedules import Schedule
 from ibt.tasks import get_task
 
 
@@ -93,8 +95,10 @@ def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
     evaluation = evaluate_tree(cfg, cell.task, tree)
     expert = expert_evaluation(cfg, cell.task, cell.algo)
     random_return = get_task(cell.task).random_return()
+    schedule = Schedule(**run.config["schedule"])
     row = {"task": cell.task, "expert": cell.algo, "method": cell.method, "seed": cell.seed,
-           **{k: v for k, v in cell.overrides},
+           "schedule": schedule.label,
+           **{k: v for k, v in cell.overrides if k != "schedule"},
            "mean_return": evaluation["mean_return"], "std_return": evaluation["std_return"],
            "expert_return": expert["mean_return"], "random_return": random_return,
            "retention_raw": retention_raw(evaluation["mean_return"], expert["mean_return"]),
@@ -140,6 +144,34 @@ def run_grid(cfg: Config, cells: Sequence[Cell], *, n_jobs: int | None = None,
     return pd.DataFrame(rows)
 
 
+def available(cells: Iterable[Cell]) -> list[Cell]:
+    """The cells whose expert checkpoint is committed (the others are reported as missing)."""
+    return [c for c in cells if expert_path(c.task, c.algo).exists()]
+
+
+def write_results(cfg: Config, frame: pd.DataFrame, name: str, **facts: Any) -> Path | None:
+    """``data/results/<name>.csv`` plus ``<name>.manifest.json`` (profile's data dir).
+
+    The manifest records the grid's facts (cells, total and summed wall time, machine,
+    versions) beside the table.
+    """
+    import json
+    import platform
+
+    from ibt.artifacts import atomic_write_csv, atomic_write_text, git_sha, package_versions
+
+    target = cfg.data_dir / "results" / f"{name}.csv"
+    atomic_write_csv(target, frame)
+    manifest = {"rows": len(frame), "profile": cfg.profile,
+                "summed_cell_seconds": round(float(frame.get("wall_seconds",
+                                                             pd.Series([0.0])).sum()), 1),
+                "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+                "git_sha": git_sha(), "versions": package_versions(), **facts}
+    atomic_write_text(target.with_suffix(".manifest.json"),
+                      json.dumps(manifest, indent=1, sort_keys=True, default=str) + "\n")
+    return target
+
+
 def bootstrap_ci(values: Sequence[float], n_boot: int = 2000, level: float = 0.95,
                  seed: int = 0) -> tuple[float, float]:
     """Percentile bootstrap confidence interval of the mean."""
@@ -162,3 +194,58 @@ def summarise(results: pd.DataFrame, value: str = "retention_norm",
                      value: group[value].mean(), "ci_low": low, "ci_high": high,
                      "nodes": group["nodes"].mean() if "nodes" in group else np.nan})
     return pd.DataFrame(rows)
+
+
+def seed_best(results: pd.DataFrame, task: str, algo: str, method: str) -> int:
+    """The seed whose run scored best on the final episodes (fewer nodes break ties)."""
+    rows = results[(results.task == task) & (results.expert == algo) & (results.method == method)]
+    if rows.empty:
+        raise LookupError(f"no {method} runs for {task}/{algo} in the results")
+    best = rows.sort_values(["mean_return", "nodes", "seed"], ascending=[False, True, True])
+    return int(best.iloc[0]["seed"])
+
+
+def synthesize_cell(cfg: Config, results: pd.DataFrame, task: str, algo: str,
+                    baseline_source: str = "bc") -> list[dict[str, Any]]:
+    """Imitation-BT from the seed-best Imitation-BT tree, the two baselines from the seed-best
+    ``baseline_source`` tree; every BT verified, written to ``data/trees/`` and evaluated."""
+    from ibt.baselines import bt_espresso, re_bt_espresso
+    from ibt.pipeline import save_tree
+    from ibt.policies import BTPolicy
+    from ibt.synthesis import DEFAULT_STRATEGIES, imitation_bt, verify
+
+    spec = get_task(task)
+    expert = expert_evaluation(cfg, task, algo)
+    random_return = spec.random_return()
+    rows = []
+    ibt_seed = seed_best(results, task, algo, "imitation-bt")
+    ibt_tree = distill_cached(cfg, task, algo, "imitation-bt", ibt_seed).best_tree
+    base_seed = seed_best(results, task, algo, baseline_source)
+    base_tree = distill_cached(cfg, task, algo, baseline_source, base_seed).best_tree
+    strategies = {s: imitation_bt(ibt_tree, spec, default_strategy=s) for s in DEFAULT_STRATEGIES}
+    with_dc = imitation_bt(ibt_tree, spec, dont_cares=True)
+    made = [("imitation-bt", ibt_seed, "imitation-bt", ibt_tree, strategies["max_complexity"]),
+            ("bt-espresso", base_seed, baseline_source, base_tree, bt_espresso(base_tree, spec)),
+            ("re-bt-espresso", base_seed, baseline_source, base_tree,
+             re_bt_espresso(base_tree, spec))]
+    for method, seed, source, tree, result in made:
+        checked = verify(result.bt, tree, spec)
+        save_tree(cfg, result.bt, task, algo, method)
+        run = rollout(spec, BTPolicy(spec, result.bt).act, final_seeds(cfg.final_episodes))
+        row = {"task": task, "expert": algo, "method": method, "source_method": source,
+               "source_seed": seed, "nodes": result.bt.node_count,
+               "tree_nodes": int(tree.tree_.node_count),
+               "conditions": result.bt.node_types()["condition"],
+               **{f"n_{k}": v for k, v in result.bt.node_types().items()},
+               "default_action": (spec.action_names[result.default_action]
+                                  if result.default_action is not None else ""),
+               "default_strategy": result.default_strategy or "",
+               "equivalent": True, "states_checked": checked,
+               "mean_return": run.mean, "std_return": run.std,
+               "retention_raw": retention_raw(run.mean, expert["mean_return"]),
+               "retention_norm": retention_norm(run.mean, expert["mean_return"], random_return)}
+        if method == "imitation-bt":
+            row.update({f"nodes_{s}": r.bt.node_count for s, r in strategies.items()})
+            row["nodes_dont_cares"] = with_dc.bt.node_count
+        rows.append(row)
+    return rows

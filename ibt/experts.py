@@ -52,6 +52,7 @@ class Hyperparams:
     kwargs: tuple[tuple[str, Any], ...] = ()
     source: str = "ours"  # "zoo:<file>" or "ours"
     net_arch: tuple[int, ...] = NET_ARCH
+    train_env: tuple[tuple[str, Any], ...] = ()  # env kwargs used while training only
 
     def algo_kwargs(self) -> dict[str, Any]:
         out = {}
@@ -63,9 +64,10 @@ class Hyperparams:
 
 
 def _hp(timesteps: float, n_envs: int = 1, normalize: bool = False, source: str = "ours",
-        net_arch: tuple[int, ...] = NET_ARCH, **kwargs: Any) -> Hyperparams:
+        net_arch: tuple[int, ...] = NET_ARCH, train_env: dict[str, Any] | None = None,
+        **kwargs: Any) -> Hyperparams:
     return Hyperparams(int(timesteps), n_envs, normalize, tuple(sorted(kwargs.items())), source,
-                       net_arch)
+                       net_arch, tuple(sorted((train_env or {}).items())))
 
 
 _ZOO_DQN = "zoo:hyperparams/dqn.yml"
@@ -305,7 +307,8 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     path = Path(path) if path is not None else expert_path(task, algo)
     torch.set_num_threads(1)
     start = time.perf_counter()
-    venv = make_vec_env(lambda: task.make_env(), n_envs=hp.n_envs, seed=seed)
+    train_env = dict(hp.train_env)
+    venv = make_vec_env(lambda: task.make_env(**train_env), n_envs=hp.n_envs, seed=seed)
     if hp.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True)
     kwargs = hp.algo_kwargs()

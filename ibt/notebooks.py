@@ -6,6 +6,7 @@ so that a re-executed notebook differs from the committed one only where results
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import nbformat
 
 VOLATILE_CELL_KEYS = ("papermill", "execution", "collapsed", "scrolled")
 VOLATILE_NOTEBOOK_KEYS = ("papermill", "widgets")
+_ADDRESS = re.compile(r" at 0x[0-9a-f]+>")
 
 
 def scrub(path: str | Path) -> None:
@@ -31,6 +33,9 @@ def scrub(path: str | Path) -> None:
         if cell.cell_type == "code":
             for output in cell.get("outputs", []):
                 output.get("metadata", {}).pop("execution", None)
+                plain = output.get("data", {}).get("text/plain")
+                if isinstance(plain, str):  # object reprs carry memory addresses
+                    output["data"]["text/plain"] = _ADDRESS.sub(">", plain)
     atomic_write_text(path, nbformat.writes(nb) + "\n")
 
 
