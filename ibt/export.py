@@ -50,7 +50,8 @@ def to_graphviz(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
 
     graph = graphviz.Digraph(graph_attr={"rankdir": "TB", "nodesep": "0.25", "ranksep": "0.35",
                                          "ordering": "out"},
-                             node_attr={"fontname": "Helvetica", "fontsize": "11"})
+                             node_attr={"fontname": "Helvetica", "fontsize": "11"},
+                             edge_attr={"fontname": "Helvetica", "fontsize": "9"})
     nodes = list(iterate(bt.root))
     index = {id(n): i for i, n in enumerate(nodes)}
     for i, node in enumerate(nodes):
@@ -97,3 +98,29 @@ def trace_graph(bt: BehaviorTree, state, precision: int = 4):
     _, trace = tick(bt, state)
     return to_graphviz(bt, highlight={step.index: step.success for step in trace},
                        precision=precision)
+
+
+def decision_tree_graphviz(tree, feature_names, action_names,
+                           precision: int = 4):
+    """A drawing of a fitted scikit-learn tree with the same labels as the BTs (left = true)."""
+    import graphviz
+    import numpy as np
+
+    t = tree.tree_
+    classes = np.asarray(tree.classes_)
+    graph = graphviz.Digraph(graph_attr={"rankdir": "TB", "nodesep": "0.25", "ranksep": "0.35",
+                                         "ordering": "out"},
+                             node_attr={"fontname": "Helvetica", "fontsize": "11"},
+                             edge_attr={"fontname": "Helvetica", "fontsize": "9"})
+    for node in range(t.node_count):
+        left, right = t.children_left[node], t.children_right[node]
+        if left == right:
+            action = int(classes[int(np.argmax(t.value[node][0]))])
+            graph.node(f"d{node}", action_names[action], shape="box", style="filled,rounded",
+                       fillcolor="#d9f2d9")
+            continue
+        label = f"{feature_names[t.feature[node]]} <= {t.threshold[node]:.{precision}g}"
+        graph.node(f"d{node}", label, shape="box")
+        graph.edge(f"d{node}", f"d{left}", label="yes")
+        graph.edge(f"d{node}", f"d{right}", label="no")
+    return graph

@@ -146,3 +146,49 @@ def beta_analysis(curves: pd.DataFrame, results: pd.DataFrame, path: str | Path 
     if path is not None:
         save_figure(fig, path)
     return fig
+
+
+def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figure:
+    """Fig. 5: node counts per task and method (log scale), one panel per expert.
+
+    ``frame``: columns task, expert, method, nodes (trees for BC/DAgger/VIPER, BTs for the
+    synthesis methods).
+    """
+    experts = [e for e in ("dqn", "ppo", "a2c") if e in set(frame["expert"])]
+    tasks = list(dict.fromkeys(frame["task"]))
+    methods = [m for m in METHOD_ORDER if m in set(frame["method"])]
+    fig, axes = plt.subplots(1, len(experts), figsize=(4.2 * len(experts), 3.8), squeeze=False,
+                             sharey=True)
+    width = 0.8 / len(methods)
+    for ax, expert in zip(axes[0], experts, strict=True):
+        part = frame[frame["expert"] == expert].groupby(["task", "method"])["nodes"].mean()
+        for k, method in enumerate(methods):
+            xs = [i - 0.4 + width * (k + 0.5) for i, t in enumerate(tasks) if (t, method) in part]
+            ys = [part[(t, method)] for t in tasks if (t, method) in part]
+            ax.bar(xs, ys, width, label=method, color=METHOD_COLORS.get(method))
+        ax.set_yscale("log")
+        ax.set_title(f"{expert.upper()} expert", fontsize=10)
+        ax.set_xticks(range(len(tasks)), tasks, rotation=35, ha="right", fontsize=8)
+    axes[0, 0].set_ylabel("nodes (log scale)")
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig
+
+
+def image_panels(images: dict[str, str | Path], path: str | Path | None = None,
+                 widths: list[float] | None = None) -> plt.Figure:
+    """Rendered drawings side by side with titles (Figs. 6-8)."""
+    arrays = {title: plt.imread(str(p)) for title, p in images.items()}
+    widths = widths or [a.shape[1] / a.shape[0] for a in arrays.values()]
+    fig, axes = plt.subplots(1, len(arrays), figsize=(min(4.0 * sum(widths), 22), 5),
+                             gridspec_kw={"width_ratios": widths}, squeeze=False)
+    for ax, (title, image) in zip(axes[0], arrays.items(), strict=True):
+        ax.imshow(image)
+        ax.set_title(title, fontsize=10)
+        ax.axis("off")
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig
