@@ -192,3 +192,33 @@ def image_panels(images: dict[str, str | Path], path: str | Path | None = None,
     if path is not None:
         save_figure(fig, path)
     return fig
+
+
+def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
+                      path: str | Path | None = None) -> plt.Figure:
+    """Tree size against retention, one line per (task, expert), a point per leaf limit.
+
+    ``frame``: :func:`ibt.experiments.summarise` output grouped by task, expert and
+    max_leaf_nodes (columns nodes, ``value``, ci_low, ci_high).
+    """
+    tasks = list(dict.fromkeys(frame["task"]))
+    fig, axes = plt.subplots(1, len(tasks), figsize=(3.6 * len(tasks), 3.4), squeeze=False,
+                             sharey=True)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        part = frame[frame["task"] == task]
+        for expert, rows in part.groupby("expert", sort=False):
+            rows = rows.sort_values("nodes")
+            ax.errorbar(rows["nodes"], rows[value],
+                        yerr=[rows[value] - rows["ci_low"], rows["ci_high"] - rows[value]],
+                        fmt="o-", ms=3, capsize=2, label=expert.upper())
+        ax.axhline(100, color="black", lw=0.8, ls=":")
+        ax.axhline(98, color="grey", lw=0.8, ls="--")
+        ax.set_xscale("log")
+        ax.set_title(task, fontsize=10)
+        ax.set_xlabel("decision-tree nodes (log)")
+    axes[0, 0].set_ylabel("retention (%, random-normalised)")
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig
