@@ -4,7 +4,8 @@
 cache in ``data/cache`` (a hit when nothing changed) and artifacts are written to ``data/``,
 ``figures/`` and ``paper/``. ``smoke`` shrinks every budget so a notebook runs in seconds and
 writes only to a temporary directory; CI selects it with ``IBT_PROFILE=smoke`` because nbval
-cannot inject parameters. ``config`` rejects unknown parameter names.
+cannot inject parameters. ``IBT_REFRESH=1`` recomputes cached steps instead of loading them
+(``make reproduce``). ``config`` rejects unknown parameter names.
 """
 
 from __future__ import annotations
@@ -75,6 +76,7 @@ def config(profile: str | None = None, **overrides: Any) -> Config:
         raise TypeError(f"unknown parameter {detail}; known parameters: "
                         f"{', '.join(sorted(names))}")
     values = (_paper if profile == "paper" else _smoke)()
+    values["refresh"] = os.environ.get("IBT_REFRESH", "") == "1"  # `make reproduce`
     values.update(overrides)
     for key in ("cache_dir", "data_dir", "figures_dir", "paper_dir"):
         values[key] = Path(values[key])

@@ -15,7 +15,7 @@ import pandas as pd
 from ibt.artifacts import file_digest, load_or_compute
 from ibt.bt import BehaviorTree
 from ibt.config import Config
-from ibt.distill import Distillation, DistillConfig, distill
+from ibt.distill import Distillation, DistillConfig, distill, task_budget
 from ibt.evaluate import episode_metrics, final_seeds, retention_norm, retention_raw, rollout
 from ibt.experts import expert_path, load_expert
 from ibt.export import save_json
@@ -24,27 +24,29 @@ from ibt.tasks import get_task
 
 def distill_config(cfg: Config, task: str, method: str = "imitation-bt", **overrides: Any
                    ) -> DistillConfig:
-    """The task's distillation settings scaled to the profile's budgets."""
-    base = DistillConfig.for_task(task, method=method)
-    labels = max(50, round(base.labels_per_iteration * cfg.labels_scale))
+    """The task's distillation settings (``TASK_BUDGETS``) scaled to the profile's budgets."""
+    labels = max(50, round(task_budget(task).labels_per_iteration * cfg.labels_scale))
     settings = {"n_iterations": cfg.n_iterations, "labels_per_iteration": labels,
                 "selection_episodes": cfg.selection_episodes, **overrides}
-    return DistillConfig.for_task(task, method=method, **{
-        "max_leaf_nodes": base.max_leaf_nodes, "max_depth": base.max_depth,
-        "ccp_alpha": base.ccp_alpha, **settings})
+    return DistillConfig.for_task(task, method=method, **settings)
 
 
 def distill_cached(cfg: Config, task: str, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> Distillation:
-    """A distillation run, from the cache when the same expert, settings and seed ran before."""
+    """A distillation run, from the cache when the same expert, settings and seed ran before.
+
+    The cache key holds the expert checkpoint's digest: a retrained expert is a cache miss.
+    """
     task_obj = get_task(task)
-    expert = load_expert(task_obj, algo)
     dcfg = distill_config(cfg, task_obj.name, method, **overrides)
     params = {"task": task_obj.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
               "expert_sha256": file_digest(expert_path(task_obj, algo))}
-    return load_or_compute("distill", params,
-                           lambda: distill(task_obj, expert, dcfg, seed, progress=cfg.progress),
-                           cache_dir=cfg.cache_dir, refresh=cfg.refresh)
+
+    def compute() -> Distillation:
+        return distill(task_obj, load_expert(task_obj, algo), dcfg, seed, progress=cfg.progress)
+
+    return load_or_compute("distill", params, compute, cache_dir=cfg.cache_dir,
+                           refresh=cfg.refresh)
 
 
 def iterations_frame(run: Distillation) -> pd.DataFrame:

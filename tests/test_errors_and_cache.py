@@ -77,3 +77,11 @@ def test_cache_hit_miss_and_atomicity(tmp_path):
     assert not is_cached("demo", {"a": 2}, cache_dir=tmp_path)
     leftovers = [p for p in tmp_path.rglob("*") if p.name.startswith(".")]
     assert leftovers == []
+
+
+def test_refresh_and_profile_come_from_the_environment(monkeypatch):
+    monkeypatch.setenv("IBT_PROFILE", "smoke")
+    monkeypatch.setenv("IBT_REFRESH", "1")
+    cfg = ibt.config("paper")
+    assert cfg.profile == "smoke" and cfg.refresh
+    assert "ibt-smoke-" in str(cfg.cache_dir) or "IBT_SMOKE_DIR" in __import__("os").environ
