@@ -222,3 +222,32 @@ def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
     if path is not None:
         save_figure(fig, path)
     return fig
+
+
+def decision_regions(grids: dict[str, np.ndarray], extent: tuple[float, float, float, float],
+                     action_names: tuple[str, ...], axis_names: tuple[str, str],
+                     path: str | Path | None = None) -> plt.Figure:
+    """Actions over a 2-D state grid, one panel per policy (Fig. 8's right-hand side).
+
+    ``grids[name]`` holds action indices with shape (n_y, n_x) over ``extent`` =
+    (x_min, x_max, y_min, y_max).
+    """
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    colors = ["#4575b4", "#ffffbf", "#d73027", "#91bfdb", "#fc8d59"][: len(action_names)]
+    cmap = ListedColormap(colors)
+    fig, axes = plt.subplots(1, len(grids), figsize=(4.2 * len(grids), 3.4), squeeze=False,
+                             sharey=True)
+    for ax, (name, grid) in zip(axes[0], grids.items(), strict=True):
+        ax.imshow(grid, origin="lower", extent=extent, aspect="auto", cmap=cmap,
+                  vmin=-0.5, vmax=len(action_names) - 0.5, interpolation="nearest")
+        ax.set_title(name, fontsize=10)
+        ax.set_xlabel(axis_names[0])
+    axes[0, 0].set_ylabel(axis_names[1])
+    handles = [Patch(color=c, label=a) for c, a in zip(colors, action_names, strict=True)]
+    axes[0, -1].legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1, 1))
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig
