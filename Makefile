@@ -33,10 +33,12 @@ figures: setup ## re-run every notebook (paper profile, cached results) and rewr
 		$(BIN)/python -m ibt.notebooks scrub $$nb; \
 	done
 
-reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours)
-	$(BIN)/python -m ibt train --refresh
+reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
+	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started
+	$(BIN)/python -m ibt train --refresh-before build/reproduce/started
 	$(BIN)/python -m ibt random-baselines
-	IBT_REFRESH=1 $(MAKE) figures
+	IBT_CACHE_DIR=$(CURDIR)/build/reproduce/cache $(MAKE) figures
+	rm -f build/reproduce/started
 
 smoke: setup ## run every notebook under the smoke profile into build/smoke (seconds each)
 	@mkdir -p build/smoke

@@ -28,8 +28,9 @@ SYNTHESIS_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso")
 def _train(args: argparse.Namespace) -> int:
     from ibt.training import train_missing
 
+    since = Path(args.refresh_before).stat().st_mtime if args.refresh_before else None
     manifest = train_missing(args.tasks or None, args.algo or ALGOS, refresh=args.refresh,
-                             seed=args.seed, timesteps=args.timesteps)
+                             seed=args.seed, timesteps=args.timesteps, refresh_before=since)
     print(manifest.to_string(index=False))
     return 0
 
@@ -185,6 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("tasks", nargs="*", help="task names (default: all)")
     train.add_argument("--algo", action="append", choices=ALGOS, help="repeatable; default all")
     train.add_argument("--refresh", action="store_true", help="retrain existing experts")
+    train.add_argument("--refresh-before", metavar="FILE",
+                       help="retrain experts older than FILE (a resumable --refresh)")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--timesteps", type=int, default=None, help="override the table")
     train.set_defaults(func=_train)

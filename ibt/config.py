@@ -4,8 +4,9 @@
 cache in ``data/cache`` (a hit when nothing changed) and artifacts are written to ``data/``,
 ``figures/`` and ``paper/``. ``smoke`` shrinks every budget so a notebook runs in seconds and
 writes only to a temporary directory; CI selects it with ``IBT_PROFILE=smoke`` because nbval
-cannot inject parameters. ``IBT_REFRESH=1`` recomputes cached steps instead of loading them
-(``make reproduce``). ``config`` rejects unknown parameter names.
+cannot inject parameters. ``IBT_CACHE_DIR`` points the cache elsewhere (``make reproduce``
+starts from an empty one, so an interrupted reproduction resumes); ``IBT_REFRESH=1`` recomputes
+cached steps instead of loading them. ``config`` rejects unknown parameter names.
 """
 
 from __future__ import annotations
@@ -76,7 +77,9 @@ def config(profile: str | None = None, **overrides: Any) -> Config:
         raise TypeError(f"unknown parameter {detail}; known parameters: "
                         f"{', '.join(sorted(names))}")
     values = (_paper if profile == "paper" else _smoke)()
-    values["refresh"] = os.environ.get("IBT_REFRESH", "") == "1"  # `make reproduce`
+    values["refresh"] = os.environ.get("IBT_REFRESH", "") == "1"
+    if os.environ.get("IBT_CACHE_DIR"):  # `make reproduce`: a fresh cache, resumable
+        values["cache_dir"] = os.environ["IBT_CACHE_DIR"]
     values.update(overrides)
     for key in ("cache_dir", "data_dir", "figures_dir", "paper_dir"):
         values[key] = Path(values[key])

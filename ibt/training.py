@@ -108,8 +108,13 @@ def _record_locked(row: dict[str, Any], manifest: Path) -> None:
 
 def train_missing(tasks: Iterable[str] | None = None, algos: Iterable[str] = ALGOS, *,
                   refresh: bool = False, root: Path | None = None, seed: int = 0,
-                  timesteps: int | None = None, progress: bool = True) -> pd.DataFrame:
-    """Train (when missing or ``refresh``) and record each expert; returns the manifest."""
+                  timesteps: int | None = None, progress: bool = True,
+                  refresh_before: float | None = None) -> pd.DataFrame:
+    """Train (when missing or ``refresh``) and record each expert; returns the manifest.
+
+    ``refresh_before`` (a POSIX time) retrains only checkpoints older than it: a from-scratch
+    run that was interrupted resumes where it stopped.
+    """
     root = root or DATA_DIR / "experts"
     manifest = root / "manifest.csv"
     pairs = [(get_task(t).name, a) for t in (tasks or list(TASKS)) for a in algos]
@@ -118,7 +123,9 @@ def train_missing(tasks: Iterable[str] | None = None, algos: Iterable[str] = ALG
         path = expert_path(task, algo, root)
         existing = _read_manifest(manifest)
         have_row = ((existing["task"] == task) & (existing["algo"] == algo)).any()
-        if path.exists() and have_row and not refresh:
+        stale = refresh or (refresh_before is not None and path.exists()
+                            and path.stat().st_mtime < refresh_before)
+        if path.exists() and have_row and not stale:
             continue
         facts = train_expert(task, algo, path, seed=seed, timesteps=timesteps,
                              progress=progress)
