@@ -124,8 +124,12 @@ HYPERPARAMS: dict[tuple[str, str], Hyperparams] = {
                                    gamma=0.995, n_steps=5, learning_rate="lin_0.00083",
                                    ent_coef=1e-5),
     ("CliffWalking-v1", "dqn"): _hp(5e4, **_OURS_TABULAR_DQN),
-    ("CliffWalking-v1", "ppo"): _hp(1e5, 8, **_OURS_TABULAR_PPO),
-    ("CliffWalking-v1", "a2c"): _hp(1e5, 8, **_OURS_TABULAR_A2C),
+    # on-policy agents settle on "never approach the cliff" (return -100) unless they explore
+    # more and, while training only, get episodes long enough to stumble on the goal
+    ("CliffWalking-v1", "ppo"): _hp(3e5, 8, n_steps=256, batch_size=256, gamma=0.99,
+                                    ent_coef=0.05, train_env={"max_episode_steps": 1000}),
+    ("CliffWalking-v1", "a2c"): _hp(3e5, 8, n_steps=16, gamma=0.99, ent_coef=0.05,
+                                    train_env={"max_episode_steps": 1000}),
     ("FrozenLake-v1", "dqn"): _hp(5e4, **_OURS_TABULAR_DQN),
     ("FrozenLake-v1", "ppo"): _hp(1e5, 8, **_OURS_TABULAR_PPO),
     ("FrozenLake-v1", "a2c"): _hp(1e5, 8, **_OURS_TABULAR_A2C),
@@ -135,8 +139,10 @@ HYPERPARAMS: dict[tuple[str, str], Hyperparams] = {
                                     **_HIGHWAY_PPO),
     ("highway-fast-v0", "a2c"): _hp(2e4, 6, learning_rate=5e-4, gamma=0.8, n_steps=16),
     ("PackageDelivery-v0", "dqn"): _hp(2e5, **{**_OURS_TABULAR_DQN, "gamma": 0.98}),
-    ("PackageDelivery-v0", "ppo"): _hp(3e5, 8, **{**_OURS_TABULAR_PPO, "gamma": 0.98}),
-    ("PackageDelivery-v0", "a2c"): _hp(3e5, 8, **{**_OURS_TABULAR_A2C, "gamma": 0.98}),
+    # with ent_coef 0.01 and 3e5 steps both settled on charging forever (return -20)
+    ("PackageDelivery-v0", "ppo"): _hp(5e5, 8, n_steps=512, batch_size=256, gamma=0.99,
+                                       ent_coef=0.05),
+    ("PackageDelivery-v0", "a2c"): _hp(5e5, 8, n_steps=16, gamma=0.99, ent_coef=0.05),
 }
 
 
