@@ -175,9 +175,9 @@ def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int =
     start = time.perf_counter()
     bar = tqdm(range(n), desc=f"{config.method} {task.name}/{expert.algo} s{seed}",
                disable=not progress, leave=False)
+    n_labels = 0
     for i in bar:
         beta = config.beta(i, n)
-        n_before = sum(len(lab) for lab in labels)
 
         def act(obs: np.ndarray, beta: float = beta, learner: CompiledTree | None = learner
                 ) -> np.ndarray:
@@ -194,6 +194,7 @@ def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int =
                 budget=config.labels_per_iteration)
         x = np.concatenate(features)
         y = np.concatenate(labels)
+        new_labels, n_labels = len(y) - n_labels, len(y)
         if config.weighted:
             w = np.concatenate(weights)
             p = w / w.sum() if w.sum() > 0 else None
@@ -212,8 +213,7 @@ def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int =
         mean, std = scored[key]
         record.trees.append(tree)
         record.iterations.append({
-            "iteration": i, "beta": beta, "labels": sum(len(lab) for lab in labels) - n_before,
-            "dataset": len(np.concatenate(labels)) if labels else 0,
+            "iteration": i, "beta": beta, "labels": new_labels, "dataset": n_labels,
             "nodes": int(tree.tree_.node_count), "leaves": int(tree.get_n_leaves()),
             "selection_mean": mean, "selection_std": std,
         })
