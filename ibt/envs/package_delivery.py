@@ -162,6 +162,10 @@ class PackageDeliveryEnv(gymnasium.Env):
         self.render_mode = render_mode
         self.observation_space = spaces.MultiDiscrete(OBS_NVEC.copy(), dtype=np.int64)
         self.action_space = spaces.Discrete(len(ACTION_NAMES))
+        self._start_state()
+
+    def _start_state(self) -> None:
+        """Robot at the charger, full battery, empty hands and zones, nothing delivered."""
         self._loc = CHARGER
         self._battery = MAX_BATTERY
         self._carry = NONE
@@ -175,12 +179,7 @@ class PackageDeliveryEnv(gymnasium.Env):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode at the charger with a full battery and freshly sampled zones."""
         super().reset(seed=seed)
-        self._loc = CHARGER
-        self._battery = MAX_BATTERY
-        self._carry = NONE
-        self._zones = [NONE, NONE]
-        self._delivered = {LIGHT: 0, HEAVY: 0}
-        self._failed = False
+        self._start_state()
         self._spawn()
         return self._obs(), self._info(invalid=False)
 
