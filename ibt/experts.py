@@ -128,7 +128,7 @@ HYPERPARAMS: dict[tuple[str, str], Hyperparams] = {
     # more and, while training only, get episodes long enough to stumble on the goal
     ("CliffWalking-v1", "ppo"): _hp(3e5, 8, n_steps=256, batch_size=256, gamma=0.99,
                                     ent_coef=0.05, train_env={"max_episode_steps": 1000}),
-    ("CliffWalking-v1", "a2c"): _hp(3e5, 8, n_steps=16, gamma=0.99, ent_coef=0.05,
+    ("CliffWalking-v1", "a2c"): _hp(1e6, 8, n_steps=5, gamma=0.99, ent_coef=0.02,
                                     train_env={"max_episode_steps": 1000}),
     ("FrozenLake-v1", "dqn"): _hp(5e4, **_OURS_TABULAR_DQN),
     ("FrozenLake-v1", "ppo"): _hp(1e5, 8, **_OURS_TABULAR_PPO),
