@@ -197,21 +197,24 @@ def _finish(root: Node, method: str, rule_sets: list[RuleSet], tree: DecisionTre
                      rule_sets=tuple(rule_sets))
 
 
+def _symbolic_rule_sets(tree: DecisionTreeClassifier, symbols: list[Symbol]
+                        ) -> list[tuple[int, list[Term]]]:
+    """Each action's Espresso-minimised sum of products over ``symbols``, as literals."""
+    symbol_of = {node: i for i, s in enumerate(symbols) for node in s.nodes}
+    return [(action, [tuple(_literal(symbols[s], le) for s, le in term)
+                      for term in _minimise(paths, len(symbols), action)])
+            for action, paths in _paths(tree, symbol_of).items()]
+
+
 def bt_espresso(tree: DecisionTreeClassifier, task: Task, *, check: bool = True) -> Synthesis:
     """BT-Espresso (French et al. 2019): per-node symbols, Espresso, one guard per action.
 
     Raises :class:`ibt.synthesis.NotEquivalentError` when ``check`` and the BT disagrees with
     ``tree`` on some state.
     """
-    symbols = bt_espresso_symbols(tree)
-    symbol_of = {node: i for i, s in enumerate(symbols) for node in s.nodes}
-    guards: list[Node] = []
-    rule_sets: list[RuleSet] = []
-    for action, paths in _paths(tree, symbol_of).items():
-        terms = [tuple(_literal(symbols[s], le) for s, le in term)
-                 for term in _minimise(paths, len(symbols), action)]
-        rule_sets.append(RuleSet(action, tuple(terms)))
-        guards.append(_guard((), terms, action))
+    rule_sets = [RuleSet(action, tuple(terms))
+                 for action, terms in _symbolic_rule_sets(tree, bt_espresso_symbols(tree))]
+    guards = [_guard((), list(rs.terms), rs.action) for rs in rule_sets]
     return _finish(Selector(tuple(guards)), "bt-espresso", rule_sets, tree, task, check)
 
 
@@ -239,16 +242,7 @@ def re_bt_espresso(tree: DecisionTreeClassifier, task: Task, *, check: bool = Tr
     Raises :class:`ibt.synthesis.NotEquivalentError` when ``check`` and the BT disagrees with
     ``tree`` on some state.
     """
-    symbols = re_bt_espresso_symbols(tree)
-    symbol_of = {node: i for i, s in enumerate(symbols) for node in s.nodes}
-    guards: list[Node] = []
-    rule_sets: list[RuleSet] = []
-    for action, paths in _paths(tree, symbol_of).items():
-        minimised = _minimise(paths, len(symbols), action)
-        terms = [merge_thresholds(tuple(_literal(symbols[s], le) for s, le in term))
-                 for term in minimised]
-        terms = list(dict.fromkeys(terms))
-        rule_sets.append(RuleSet(action, tuple(terms)))
-        common, rest = factor_common(terms)
-        guards.append(_guard(common, rest, action))
+    rule_sets = [RuleSet(action, tuple(dict.fromkeys(merge_thresholds(t) for t in terms)))
+                 for action, terms in _symbolic_rule_sets(tree, re_bt_espresso_symbols(tree))]
+    guards = [_guard(*factor_common(list(rs.terms)), rs.action) for rs in rule_sets]
     return _finish(Selector(tuple(guards)), "re-bt-espresso", rule_sets, tree, task, check)
