@@ -27,7 +27,7 @@ from ibt.distill import METHODS, _signature
 from ibt.evaluate import episode_metrics, final_seeds, retention_norm, retention_raw, rollout
 from ibt.experts import expert_path, load_expert
 from ibt.pipeline import distill_cached
-from ibt.policies import CompiledTree
+from ibt.policies import TreePolicy
 from ibt.schedules import Schedule
 from ibt.tasks import get_task
 
@@ -75,9 +75,8 @@ def evaluate_tree(cfg: Config, task: str, tree: Any) -> dict[str, float]:
               "tree": _signature(tree).hex()}
 
     def compute() -> dict[str, float]:
-        compiled = CompiledTree(tree)
         spec = get_task(task)
-        result = rollout(spec, lambda obs: compiled.predict(spec.features(obs)),
+        result = rollout(spec, TreePolicy(spec, tree).act,
                          final_seeds(cfg.final_episodes))
         return {"mean_return": result.mean, "std_return": result.std,
                 **episode_metrics(spec, result)}
