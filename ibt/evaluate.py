@@ -134,6 +134,8 @@ def episode_metrics(task: str | Task, result: Rollout) -> dict[str, float]:
     elif name == "PackageDelivery-v0":
         out["battery_failure_rate"] = float(
             np.mean([bool(i.get("battery_failure")) for i in result.final_infos]))
+        out["delivered"] = float(np.mean([i.get("delivered_heavy", 0) + i.get("delivered_light", 0)
+                                          for i in result.final_infos]))
     return out
 
 

@@ -204,47 +204,146 @@ def seed_best(results: pd.DataFrame, task: str, algo: str, method: str) -> int:
     return int(best.iloc[0]["seed"])
 
 
-def synthesize_cell(cfg: Config, results: pd.DataFrame, task: str, algo: str,
-                    baseline_source: str = "bc") -> list[dict[str, Any]]:
-    """Imitation-BT from the seed-best Imitation-BT tree, the two baselines from the seed-best
-    ``baseline_source`` tree; every BT verified, written to ``data/trees/`` and evaluated."""
+BT_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso")
+#: Bump when synthesis, verification or the synthesis row changes: cached rows are recomputed.
+SYNTHESIS_VERSION = 1
+
+
+def _synthesize(tree: Any, spec: Any, method: str) -> Any:
     from ibt.baselines import bt_espresso, re_bt_espresso
-    from ibt.pipeline import save_tree
-    from ibt.policies import BTPolicy
+    from ibt.synthesis import imitation_bt
+
+    if method == "imitation-bt":
+        return imitation_bt(tree, spec)  # the paper's default strategy, max_complexity
+    if method == "bt-espresso":
+        return bt_espresso(tree, spec)
+    if method == "re-bt-espresso":
+        return re_bt_espresso(tree, spec)
+    raise ValueError(f"unknown BT method {method!r}; choose from {', '.join(BT_METHODS)}")
+
+
+def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
+                   source_method: str, **overrides: Any) -> dict[str, Any]:
+    """One BT from the best tree of one distillation run, verified against it (cached).
+
+    Returns ``{"row": structure facts, "bt": BehaviorTree}``; a BT that disagrees with its tree
+    raises :class:`ibt.synthesis.NotEquivalentError` and nothing is cached or written.
+    """
     from ibt.synthesis import DEFAULT_STRATEGIES, imitation_bt, verify
 
     spec = get_task(task)
-    expert = expert_evaluation(cfg, task, algo)
-    random_return = spec.random_return()
-    rows = []
-    ibt_seed = seed_best(results, task, algo, "imitation-bt")
-    ibt_tree = distill_cached(cfg, task, algo, "imitation-bt", ibt_seed).best_tree
-    base_seed = seed_best(results, task, algo, baseline_source)
-    base_tree = distill_cached(cfg, task, algo, baseline_source, base_seed).best_tree
-    strategies = {s: imitation_bt(ibt_tree, spec, default_strategy=s) for s in DEFAULT_STRATEGIES}
-    with_dc = imitation_bt(ibt_tree, spec, dont_cares=True)
-    made = [("imitation-bt", ibt_seed, "imitation-bt", ibt_tree, strategies["max_complexity"]),
-            ("bt-espresso", base_seed, baseline_source, base_tree, bt_espresso(base_tree, spec)),
-            ("re-bt-espresso", base_seed, baseline_source, base_tree,
-             re_bt_espresso(base_tree, spec))]
-    for method, seed, source, tree, result in made:
+    tree = distill_cached(cfg, spec.name, algo, source_method, seed, **overrides).best_tree
+    params = {"task": spec.name, "algo": algo, "method": method, "seed": seed,
+              "source_method": source_method, "tree": _signature(tree).hex(),
+              "version": SYNTHESIS_VERSION}
+
+    def compute() -> dict[str, Any]:
+        result = _synthesize(tree, spec, method)
         checked = verify(result.bt, tree, spec)
-        save_tree(cfg, result.bt, task, algo, method)
-        run = rollout(spec, BTPolicy(spec, result.bt).act, final_seeds(cfg.final_episodes))
-        row = {"task": task, "expert": algo, "method": method, "source_method": source,
-               "source_seed": seed, "nodes": result.bt.node_count,
-               "tree_nodes": int(tree.tree_.node_count),
-               "conditions": result.bt.node_types()["condition"],
-               **{f"n_{k}": v for k, v in result.bt.node_types().items()},
+        types = result.bt.node_types()
+        row = {"task": spec.name, "expert": algo, "method": method, "seed": seed,
+               "source_method": source_method, "nodes": result.bt.node_count,
+               "tree_nodes": int(tree.tree_.node_count), "conditions": types["condition"],
+               **{f"n_{k}": v for k, v in types.items()},
                "default_action": (spec.action_names[result.default_action]
                                   if result.default_action is not None else ""),
                "default_strategy": result.default_strategy or "",
-               "equivalent": True, "states_checked": checked,
-               "mean_return": run.mean, "std_return": run.std,
-               "retention_raw": retention_raw(run.mean, expert["mean_return"]),
-               "retention_norm": retention_norm(run.mean, expert["mean_return"], random_return)}
+               "equivalent": True, "states_checked": checked}
         if method == "imitation-bt":
-            row.update({f"nodes_{s}": r.bt.node_count for s, r in strategies.items()})
+            for strategy in DEFAULT_STRATEGIES:
+                row[f"nodes_{strategy}"] = imitation_bt(
+                    tree, spec, default_strategy=strategy).bt.node_count
+            with_dc = imitation_bt(tree, spec, dont_cares=True)
+            verify(with_dc.bt, tree, spec)
             row["nodes_dont_cares"] = with_dc.bt.node_count
-        rows.append(row)
-    return rows
+        return {"row": row, "bt": result.bt}
+
+    return load_or_compute("synthesis", params, compute, cache_dir=cfg.cache_dir,
+                           refresh=cfg.refresh)
+
+
+def evaluate_bt(cfg: Config, task: str, bt: Any) -> dict[str, float]:
+    """A BT's final evaluation, rolled out in the environment (cached on its JSON)."""
+    import hashlib
+
+    from ibt.policies import BTPolicy
+
+    params = {"task": task, "episodes": cfg.final_episodes,
+              "bt": hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]}
+
+    def compute() -> dict[str, float]:
+        spec = get_task(task)
+        result = rollout(spec, BTPolicy(spec, bt).act, final_seeds(cfg.final_episodes))
+        return {"mean_return": result.mean, "std_return": result.std,
+                **episode_metrics(spec, result)}
+
+    return load_or_compute("bt-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                           refresh=cfg.refresh)
+
+
+def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "bc"
+                    ) -> pd.DataFrame:
+    """``data/results/synthesis.csv``: one BT per (task, expert, BT method, source seed).
+
+    Imitation-BT is synthesised from each Imitation-BT run's best tree; BT-Espresso and
+    RE:BT-Espresso from each ``baseline_source`` run's tree (offline demonstrations, as in
+    their papers). Every BT is verified to decide exactly as its tree, so its episodes are the
+    tree's: performance columns come from the tree's final evaluation (``evaluated`` says
+    so), except for the seed-best BT of each method, which is rolled out in the environment
+    itself (``matches_tree`` checks that the returns agree) and written to ``data/trees/``.
+    """
+    from ibt.pipeline import save_tree
+
+    sources = {"imitation-bt": "imitation-bt", "bt-espresso": baseline_source,
+               "re-bt-espresso": baseline_source}
+    pairs = list(results[["task", "expert"]].drop_duplicates().itertuples(index=False))
+    rows = []
+    for task, algo in tqdm(pairs, desc="synthesis", disable=not cfg.progress):
+        spec = get_task(task)
+        expert_return = expert_evaluation(cfg, task, algo)["mean_return"]
+        random_return = spec.random_return()
+        for method in BT_METHODS:
+            source = sources[method]
+            runs = results[(results.task == task) & (results.expert == algo)
+                           & (results.method == source)]
+            if runs.empty:
+                continue
+            best_seed = seed_best(results, task, algo, source)
+            for source_row in runs.itertuples(index=False):
+                made = synthesize_run(cfg, task, algo, method, int(source_row.seed), source)
+                row = {**made["row"], "seed_best": int(source_row.seed) == best_seed}
+                perf = {"mean_return": source_row.mean_return,
+                        "std_return": source_row.std_return}
+                row["evaluated"] = "source tree (verified equivalent)"
+                if row["seed_best"]:
+                    perf = evaluate_bt(cfg, task, made["bt"])
+                    row["evaluated"] = "BT rollout"
+                    row["matches_tree"] = bool(
+                        np.isclose(perf["mean_return"], source_row.mean_return))
+                    save_tree(cfg, made["bt"], task, algo, method)
+                row.update({k: v for k, v in perf.items() if k.endswith("_rate")
+                            or k in ("delivered",)})
+                row.update({"mean_return": perf["mean_return"], "std_return": perf["std_return"],
+                            "expert_return": expert_return, "random_return": random_return,
+                            "retention_raw": retention_raw(perf["mean_return"], expert_return),
+                            "retention_norm": retention_norm(perf["mean_return"], expert_return,
+                                                             random_return)})
+                rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def retention_table(results: pd.DataFrame, synthesis: pd.DataFrame | None = None
+                    ) -> pd.DataFrame:
+    """Fig. 4's rows: the tree methods of the grid plus the two BT baselines (per seed)."""
+    if synthesis is None or synthesis.empty:
+        return results
+    baselines = synthesis[synthesis.method.isin(["bt-espresso", "re-bt-espresso"])]
+    return pd.concat([results, baselines[[c for c in results.columns if c in baselines]]],
+                     ignore_index=True)
+
+
+def node_table(results: pd.DataFrame, synthesis: pd.DataFrame) -> pd.DataFrame:
+    """Fig. 5's rows: decision-tree nodes for BC/DAgger/VIPER, BT nodes for the BT methods."""
+    trees = results[results.method.isin(["bc", "dagger", "viper"])]
+    cols = ["task", "expert", "method", "seed", "nodes"]
+    return pd.concat([trees[cols], synthesis[cols]], ignore_index=True)

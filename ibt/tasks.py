@@ -78,6 +78,14 @@ class Task:
             return obs.reshape(-1, 1).astype(np.float32)
         return obs.reshape(len(obs), -1).astype(np.float32)
 
+    def observations(self, features: np.ndarray) -> np.ndarray:
+        """Feature rows -> the raw observations an expert takes (inverse of :meth:`features`)."""
+        space = _observation_space(self)
+        x = np.asarray(features)
+        if self.discrete_state:
+            return x[:, 0].astype(space.dtype)
+        return x.reshape(len(x), *space.shape).astype(space.dtype)
+
     def sample_features(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` random feature vectors from the task's box (integers for discrete states)."""
         low, high = np.asarray(self.low), np.asarray(self.high)
@@ -95,6 +103,19 @@ class Task:
                         return float(row["mean_return"])
         raise LookupError(f"no random-policy return for {self.name} in {path}; "
                           "run `python -m ibt random-baselines` (or `make reproduce`)")
+
+
+_SPACES: dict[str, Any] = {}
+
+
+def _observation_space(task: Task):
+    if task.name not in _SPACES:
+        env = task.make_env()
+        try:
+            _SPACES[task.name] = env.observation_space
+        finally:
+            env.close()
+    return _SPACES[task.name]
 
 
 TASKS: dict[str, Task] = {}
