@@ -195,7 +195,8 @@ def image_panels(images: dict[str, str | Path], path: str | Path | None = None,
 
 
 def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
-                      path: str | Path | None = None) -> plt.Figure:
+                      path: str | Path | None = None,
+                      xlabel: str = "decision-tree nodes (log)") -> plt.Figure:
     """Tree size against retention, one line per (task, expert), a point per leaf limit.
 
     ``frame``: :func:`ibt.experiments.summarise` output grouped by task, expert and
@@ -215,7 +216,7 @@ def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
         ax.axhline(98, color="grey", lw=0.8, ls="--")
         ax.set_xscale("log")
         ax.set_title(task, fontsize=10)
-        ax.set_xlabel("decision-tree nodes (log)")
+        ax.set_xlabel(xlabel)
     axes[0, 0].set_ylabel("retention (%, random-normalised)")
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
@@ -247,6 +248,53 @@ def decision_regions(grids: dict[str, np.ndarray], extent: tuple[float, float, f
     axes[0, 0].set_ylabel(axis_names[1])
     handles = [Patch(color=c, label=a) for c, a in zip(colors, action_names, strict=True)]
     axes[0, -1].legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1, 1))
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path)
+    return fig
+
+
+def package_delivery(frame: np.ndarray, node_types: pd.DataFrame, performance: pd.DataFrame,
+                     path: str | Path | None = None) -> plt.Figure:
+    """Fig. 9: the domain (left), BT node distribution by type per experiment and method
+    (middle), and task performance (right).
+
+    ``node_types``: columns experiment, method and one per node type; ``performance``:
+    columns experiment, policy, delivered, battery_failure_rate.
+    """
+    from ibt.bt import NODE_TYPES
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8),
+                             gridspec_kw={"width_ratios": [1.1, 1.6, 1.3]})
+    axes[0].imshow(frame)
+    axes[0].set_axis_off()
+    axes[0].set_title("package delivery (zones, depot, charger)", fontsize=9)
+    groups = list(node_types[["experiment", "method"]].itertuples(index=False, name=None))
+    bottom = np.zeros(len(groups))
+    colors = plt.get_cmap("tab10")
+    for k, kind in enumerate(NODE_TYPES):
+        values = node_types[kind].to_numpy(dtype=float)
+        axes[1].bar(range(len(groups)), values, bottom=bottom, label=kind, color=colors(k))
+        bottom += values
+    for i, total in enumerate(bottom):
+        axes[1].text(i, total, f"{int(total)}", ha="center", va="bottom", fontsize=8)
+    axes[1].set_xticks(range(len(groups)), [f"{m}\n({e.upper()} expert)" for e, m in groups],
+                       fontsize=7)
+    axes[1].set_ylabel("BT nodes")
+    axes[1].set_title("node distribution by type", fontsize=9)
+    axes[1].legend(fontsize=7, ncol=2)
+    perf = performance.set_index(["experiment", "policy"])
+    labels = [f"{p}\n({e.upper()})" for e, p in perf.index]
+    axes[2].barh(range(len(perf)), perf["delivered"], color="#3182bd")
+    for i, (delivered, failures) in enumerate(zip(perf["delivered"],
+                                                  perf["battery_failure_rate"], strict=True)):
+        axes[2].text(delivered, i, f" {delivered:.1f} ({100 * failures:.0f}% empty battery)",
+                     va="center", fontsize=7)
+    axes[2].set_yticks(range(len(perf)), labels, fontsize=7)
+    axes[2].invert_yaxis()
+    axes[2].set_xlabel("materials delivered per episode")
+    axes[2].set_title("task performance", fontsize=9)
+    axes[2].set_xlim(0, perf["delivered"].max() * 1.6)
     fig.tight_layout()
     if path is not None:
         save_figure(fig, path)
