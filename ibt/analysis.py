@@ -12,6 +12,7 @@ from itertools import pairwise
 import numpy as np
 import pandas as pd
 
+from ibt.bt import Action, BehaviorTree, Condition, Fallback, Selector, Sequence
 from ibt.tasks import Task
 
 FROZENLAKE_OPTIMAL_PATHS = {
@@ -65,3 +66,18 @@ def path_agreement(decide: Callable[[np.ndarray], np.ndarray], task: Task) -> pd
             rows.append({"path": name, "state": here, "action": task.action_names[action],
                          "follows_path": frozenlake_step(here, action) == nxt})
     return pd.DataFrame(rows)
+
+
+def mountaincar_paper_rule(task: Task, position_op: str = ">") -> BehaviorTree:
+    """The paper's MountainCar BT (its Fig. 8): push right when position > -0.96 or
+    velocity > 0.002, else push left; built as a BT so it can be run and compared.
+
+    ``position_op="<="`` gives the mirrored reading (right when position <= -0.96 or
+    velocity > 0.002): taken literally the rule pushes right from every starting state.
+    """
+    position, velocity = task.feature_names.index("position"), task.feature_names.index(
+        "velocity")
+    left, right = task.action_names.index("left"), task.action_names.index("right")
+    guard = Fallback((Condition(position, position_op, -0.96), Condition(velocity, ">", 0.002)))
+    root = Selector((Sequence((guard, Action(right))), Action(left)))
+    return BehaviorTree(root, task.feature_names, task.action_names)

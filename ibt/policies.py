@@ -21,6 +21,9 @@ class Policy(Protocol):
     def act(self, obs: np.ndarray) -> np.ndarray: ...
 
 
+SMALL_BATCH = 64
+
+
 class CompiledTree:
     """A fitted CART tree as flat arrays; ``predict`` equals scikit-learn's on every input."""
 
@@ -37,6 +40,8 @@ class CompiledTree:
 
     def predict(self, features: np.ndarray) -> np.ndarray:
         x = as_features(np.atleast_2d(features))
+        if len(x) <= SMALL_BATCH:  # a rollout's few rows: walking in Python beats array passes
+            return self._predict_rows(x)
         rows = np.arange(len(x))
         node = np.zeros(len(x), dtype=np.intp)
         for _ in range(self.depth):
@@ -44,6 +49,19 @@ class CompiledTree:
             nxt = np.where(go_left, self.left[node], self.right[node])
             node = np.where(self.is_leaf[node], node, nxt)
         return self.leaf_action[node]
+
+    def _predict_rows(self, x: np.ndarray) -> np.ndarray:
+        if not hasattr(self, "_lists"):  # the same float64 comparisons as the vector path
+            self._lists = (self.feature.tolist(), self.threshold.tolist(), self.left.tolist(),
+                           self.right.tolist(), self.is_leaf.tolist())
+        feature, threshold, left, right, is_leaf = self._lists
+        out = np.empty(len(x), dtype=np.int64)
+        for i, row in enumerate(x.tolist()):
+            node = 0
+            while not is_leaf[node]:
+                node = left[node] if row[feature[node]] <= threshold[node] else right[node]
+            out[i] = self.leaf_action[node]
+        return out
 
 
 class TreePolicy:

@@ -46,3 +46,19 @@ def test_action_grid_shape_and_orientation():
     grid = action_grid(lambda s: (s[:, 0] > 0).astype(int), (-1, 1), (-2, 2), n=10)
     assert grid.shape == (10, 10)
     assert grid[:, 0].sum() == 0 and grid[:, -1].sum() == 10  # x grows along columns
+
+
+def test_the_papers_mountaincar_rule_read_literally_always_pushes_right_at_the_start():
+    import numpy as np
+
+    import ibt
+    from ibt.analysis import mountaincar_paper_rule
+
+    car = ibt.get_task("MountainCar-v0")
+    literal = mountaincar_paper_rule(car)
+    mirrored = mountaincar_paper_rule(car, position_op="<=")
+    starts = np.column_stack([np.linspace(-0.6, -0.4, 11), np.zeros(11)]).astype(np.float32)
+    right = car.action_names.index("right")
+    assert (literal.decide(starts) == right).all()
+    assert (mirrored.decide(starts) == car.action_names.index("left")).all()
+    assert literal.node_count == mirrored.node_count == 7

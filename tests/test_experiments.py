@@ -56,3 +56,29 @@ def test_local_and_dask_grids_give_identical_rows(tmp_path):
     pd.testing.assert_frame_equal(local.drop(columns=timing), remote.drop(columns=timing))
     assert set(local.method) == {"bc", "imitation-bt"}
     assert (local.expert_labels >= 2 * TINY["labels_per_iteration"]).all()
+
+
+def test_synthesize_grid_verifies_every_bt_and_rolls_out_the_seed_best(tmp_path):
+    from ibt.experiments import node_table, retention_table, synthesize_grid
+
+    cfg = ibt.config("smoke", cache_dir=tmp_path / "cache", data_dir=tmp_path / "data")
+    cells = grid(["FrozenLake-v1"], ["dqn"], ["bc", "imitation-bt"], [0, 1])
+    results = run_grid(cfg, cells, n_jobs=1)
+    synthesis = synthesize_grid(cfg, results)
+    assert sorted(synthesis.method.unique()) == ["bt-espresso", "imitation-bt", "re-bt-espresso"]
+    assert len(synthesis) == 6 and synthesis.equivalent.all()
+    best = synthesis[synthesis.seed_best]
+    assert len(best) == 3 and best.matches_tree.all()
+    assert (best.evaluated == "BT rollout").all()
+    for method in best.method:
+        assert (cfg.data_dir / "trees" / "FrozenLake-v1" / "dqn" / f"{method}.json").exists()
+    # a BT plays its tree's episodes, so the baselines' retention is their BC tree's
+    merged = synthesis[synthesis.method == "bt-espresso"].merge(
+        results[results.method == "bc"], on="seed", suffixes=("", "_tree"))
+    assert np.allclose(merged.mean_return, merged.mean_return_tree)
+    assert set(retention_table(results, synthesis).method) == {
+        "bc", "imitation-bt", "bt-espresso", "re-bt-espresso"}
+    nodes = node_table(results, synthesis)
+    assert set(nodes.method) == {"bc", "imitation-bt", "bt-espresso", "re-bt-espresso"}
+    again = synthesize_grid(cfg, results)  # cached: identical
+    pd.testing.assert_frame_equal(synthesis, again)
