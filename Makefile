@@ -27,11 +27,12 @@ check-dot: ## fail with a hint when graphviz's dot is missing
 	@command -v dot >/dev/null || { echo "graphviz's 'dot' is missing: install it with 'sudo apt-get install graphviz' (Debian/Ubuntu) or 'brew install graphviz' (macOS)"; exit 1; }
 
 figures: setup ## re-run every notebook (paper profile, cached results) and rewrite figures/ and paper/
-	@set -e; for nb in $(NOTEBOOKS); do \
+	@set -e; start=$$(date +%s); for nb in $(NOTEBOOKS); do \
 		echo "== $$nb"; \
 		IBT_PROFILE=paper $(BIN)/papermill --no-progress-bar --cwd notebooks $$nb $$nb; \
 		$(BIN)/python -m ibt.notebooks scrub $$nb; \
-	done
+	done; \
+	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start ))
 
 reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
 	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started

@@ -1,4 +1,4 @@
-"""Notebook housekeeping: scrub volatile metadata after papermill runs.
+"""Notebook housekeeping: scrub volatile metadata after papermill runs; time ``make figures``.
 
 ``python -m ibt.notebooks scrub NB...`` removes timings, kernel ids and papermill's run records
 so that a re-executed notebook differs from the committed one only where results changed.
@@ -39,9 +39,35 @@ def scrub(path: str | Path) -> None:
     atomic_write_text(path, nbformat.writes(nb) + "\n")
 
 
+def record_time(seconds: float, data_dir: Path | None = None) -> Path:
+    """Write ``data/results/make_figures.json``: how long the last ``make figures`` took here.
+
+    The report and the README read it on the next run (they run inside ``make figures``).
+    """
+    import datetime
+    import json
+    import os
+    import platform
+
+    from ibt.artifacts import atomic_write_text
+    from ibt.paths import DATA_DIR
+
+    target = (data_dir or DATA_DIR) / "results" / "make_figures.json"
+    facts = {"seconds": float(seconds), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+             "date": datetime.date.today().isoformat()}
+    atomic_write_text(target, json.dumps(facts, indent=1) + "\n")
+    return target
+
+
+USAGE = "usage: python -m ibt.notebooks scrub NOTEBOOK... | record-time SECONDS"
+
+
 def main(argv: list[str]) -> int:
+    if len(argv) == 2 and argv[0] == "record-time":
+        print(f"make figures took {float(argv[1]):.0f} s: {record_time(float(argv[1]))}")
+        return 0
     if len(argv) < 2 or argv[0] != "scrub":
-        print("usage: python -m ibt.notebooks scrub NOTEBOOK...", file=sys.stderr)
+        print(USAGE, file=sys.stderr)
         return 2
     for name in argv[1:]:
         scrub(name)

@@ -25,8 +25,10 @@ from ibt.tasks import get_task
 def distill_config(cfg: Config, task: str, method: str = "imitation-bt", **overrides: Any
                    ) -> DistillConfig:
     """The task's distillation settings (``TASK_BUDGETS``) scaled to the profile's budgets."""
-    labels = max(50, round(task_budget(task).labels_per_iteration * cfg.labels_scale))
-    settings = {"n_iterations": cfg.n_iterations, "labels_per_iteration": labels,
+    budget = task_budget(task)
+    labels = max(50, round(budget.labels_per_iteration * cfg.labels_scale))
+    iterations = min(cfg.n_iterations, budget.max_iterations or cfg.n_iterations)
+    settings = {"n_iterations": iterations, "labels_per_iteration": labels,
                 "selection_episodes": cfg.selection_episodes, **overrides}
     return DistillConfig.for_task(task, method=method, **settings)
 
