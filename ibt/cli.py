@@ -29,8 +29,10 @@ def _train(args: argparse.Namespace) -> int:
     from ibt.training import train_missing
 
     since = Path(args.refresh_before).stat().st_mtime if args.refresh_before else None
+    root = Path(args.experts_dir) if args.experts_dir else None
     manifest = train_missing(args.tasks or None, args.algo or ALGOS, refresh=args.refresh,
-                             seed=args.seed, timesteps=args.timesteps, refresh_before=since)
+                             seed=args.seed, timesteps=args.timesteps, refresh_before=since,
+                             root=root)
     print(manifest.to_string(index=False))
     return 0
 
@@ -38,7 +40,9 @@ def _train(args: argparse.Namespace) -> int:
 def _random(args: argparse.Namespace) -> int:
     from ibt.training import random_baselines
 
-    print(random_baselines(args.tasks or None).to_string(index=False))
+    path = Path(args.output) if args.output else None
+    print(random_baselines(args.tasks or None, n_episodes=args.episodes, path=path)
+          .to_string(index=False))
     return 0
 
 
@@ -190,10 +194,14 @@ def build_parser() -> argparse.ArgumentParser:
                        help="retrain experts older than FILE (a resumable --refresh)")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--timesteps", type=int, default=None, help="override the table")
+    train.add_argument("--experts-dir", metavar="DIR",
+                       help="where checkpoints and manifest.csv go (default: data/experts)")
     train.set_defaults(func=_train)
 
     rnd = sub.add_parser("random-baselines", help="write data/experts/random.csv")
     rnd.add_argument("tasks", nargs="*")
+    rnd.add_argument("--episodes", type=int, default=100)
+    rnd.add_argument("-o", "--output", help="CSV to write (default: data/experts/random.csv)")
     rnd.set_defaults(func=_random)
 
     dist = sub.add_parser("distill", help="distil an expert into a decision tree")

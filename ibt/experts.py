@@ -283,6 +283,7 @@ def atomic_save_model(model: Any, path: Path) -> None:
 
 EVAL_POINTS = 20  # checkpoints evaluated during training (the best one is kept)
 EVAL_EPISODES = 10
+MIN_STEPS_FOR_CHECKPOINTS = 20_000
 
 
 def _final_score(callback: Any) -> float:
@@ -322,7 +323,9 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     model = _sb3_class(algo)("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
                              policy_kwargs=policy_kwargs, **kwargs)
     callback = None
-    if not hp.normalize:  # keep the best checkpoint: value-based training is not monotone
+    # keep the best checkpoint (training is not monotone); tiny smoke/test budgets skip it, as
+    # its evaluations would cost far more than the training itself
+    if not hp.normalize and steps >= MIN_STEPS_FOR_CHECKPOINTS:
         from stable_baselines3.common.callbacks import EvalCallback
 
         eval_env = make_vec_env(lambda: task.make_env(), n_envs=1, seed=seed + 10_000)

@@ -71,3 +71,21 @@ def test_help_lists_every_subcommand(capsys):
     text = capsys.readouterr().out
     for command in ("train", "distill", "synthesize", "evaluate", "export"):
         assert command in text
+
+
+def test_train_and_random_baselines_write_where_told(tmp_path, capsys):
+    import pandas as pd
+
+    experts = tmp_path / "experts"
+    assert main(["train", "FrozenLake-v1", "--algo", "ppo", "--timesteps", "256",
+                 "--experts-dir", str(experts)]) == 0
+    assert (experts / "FrozenLake-v1" / "ppo.zip").exists()
+    row = pd.read_csv(experts / "manifest.csv").iloc[0]
+    assert (row.task, row.algo, row.n_episodes) == ("FrozenLake-v1", "ppo", 100)
+    assert row.meets_bar in (True, False) and row.sha256
+    out = tmp_path / "random.csv"
+    assert main(["random-baselines", "CartPole-v1", "--episodes", "5", "-o", str(out)]) == 0
+    assert pd.read_csv(out).set_index("task").loc["CartPole-v1", "n_episodes"] == 5
+    with pytest.raises(SystemExit):
+        main(["train", "CartPole-v1", "--algo", "sac"])
+    assert "invalid choice" in capsys.readouterr().err
