@@ -86,3 +86,16 @@ def test_refresh_and_profile_come_from_the_environment(monkeypatch):
     cfg = ibt.config("paper")
     assert cfg.profile == "smoke" and cfg.refresh
     assert "ibt-smoke-" in str(cfg.cache_dir)  # a scratch folder, never data/
+
+
+def test_make_figures_time_is_recorded_atomically(tmp_path, capsys):
+    import json
+
+    from ibt.notebooks import main, record_time
+
+    path = record_time(42.4, data_dir=tmp_path)
+    facts = json.loads(path.read_text())
+    assert facts["seconds"] == 42.4 and "cores" in facts["machine"]
+    assert not list(path.parent.glob("*.tmp*"))
+    assert main(["nonsense"]) == 2
+    assert "usage" in capsys.readouterr().err
