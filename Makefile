@@ -36,6 +36,8 @@ figures: setup ## re-run every notebook (paper profile, cached results) and rewr
 
 reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
 	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started
+	@echo "Last time on this kind of machine each stage took (an estimate; progress bars follow):"
+	@$(BIN)/python -c "from ibt.report import Results, timings_markdown; from ibt.paths import DATA_DIR; print(timings_markdown(Results(DATA_DIR)))"
 	$(BIN)/python -m ibt train --refresh-before build/reproduce/started
 	$(BIN)/python -m ibt random-baselines
 	IBT_CACHE_DIR=$(CURDIR)/build/reproduce/cache $(MAKE) figures
