@@ -281,6 +281,26 @@ def evaluate_bt(cfg: Config, task: str, bt: Any) -> dict[str, float]:
                            refresh=cfg.refresh)
 
 
+def executors_agree(cfg: Config, task: str, bt: Any, tree: Any, n_states: int = 100_000
+                    ) -> dict[str, Any]:
+    """Do py_trees, the NumPy and compiled-Python executors and the sklearn tree decide alike
+    on ``n_states`` random states of the task's box? (cached: py_trees ticks ~10^4 states/s)."""
+    import hashlib
+
+    from ibt import speed
+
+    params = {"task": task, "n_states": n_states, "tree": _signature(tree).hex(),
+              "bt": hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]}
+
+    def compute() -> dict[str, Any]:
+        states = get_task(task).sample_features(n_states, np.random.default_rng(0))
+        return {"task": task, "states": n_states, "bt_nodes": bt.node_count,
+                "agree": speed.executors_agree(bt, tree, states)}
+
+    return load_or_compute("executors", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                           refresh=cfg.refresh)
+
+
 def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "bc"
                     ) -> pd.DataFrame:
     """``data/results/synthesis.csv``: one BT per (task, expert, BT method, source seed).
