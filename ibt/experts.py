@@ -133,8 +133,10 @@ HYPERPARAMS: dict[tuple[str, str], Hyperparams] = {
     ("FrozenLake-v1", "dqn"): _hp(5e4, **_OURS_TABULAR_DQN),
     ("FrozenLake-v1", "ppo"): _hp(1e5, 8, **_OURS_TABULAR_PPO),
     ("FrozenLake-v1", "a2c"): _hp(1e5, 8, **_OURS_TABULAR_A2C),
+    # the paper's 2x64 MLP reached 18.1 with 34 % collisions at 2e4 steps: the script's own
+    # 256x256 network instead
     ("highway-fast-v0", "dqn"): _hp(2e4, source="highway-env:scripts/sb3_highway_dqn.py",
-                                    **_HIGHWAY_DQN),
+                                    net_arch=ZOO_DQN_NET, **_HIGHWAY_DQN),
     ("highway-fast-v0", "ppo"): _hp(2e4, 6, source="highway-env:scripts/sb3_highway_ppo.py",
                                     **_HIGHWAY_PPO),
     ("highway-fast-v0", "a2c"): _hp(2e4, 6, learning_rate=5e-4, gamma=0.8, n_steps=16),
