@@ -30,7 +30,9 @@ def scrub(path: str | Path) -> None:
     for cell in nb.cells:
         for key in VOLATILE_CELL_KEYS:
             cell.metadata.pop(key, None)
-        if cell.cell_type == "code":
+        if cell.cell_type == "code":  # progress bars (stderr with carriage returns) are noise
+            cell["outputs"] = [o for o in cell.get("outputs", [])
+                               if not (o.get("name") == "stderr" and "\r" in o.get("text", ""))]
             for output in cell.get("outputs", []):
                 output.get("metadata", {}).pop("execution", None)
                 plain = output.get("data", {}).get("text/plain")
