@@ -120,7 +120,8 @@ HYPERPARAMS: dict[tuple[str, str], Hyperparams] = {
                                    **{**_ZOO_DQN_CLASSIC, "buffer_size": 100_000}),
     ("LunarLander-v3", "ppo"): _hp(1e6, 16, source=_ZOO_PPO, n_steps=1024, batch_size=64,
                                    gae_lambda=0.98, gamma=0.999, n_epochs=4, ent_coef=0.01),
-    ("LunarLander-v3", "a2c"): _hp(1e6, 8, source=_ZOO_A2C + " (2e5 steps there)",
+    # 1e6 steps gave 140.7 +- 132.7, below the 150 bar; 1.5e6 (the limit) reaches it
+    ("LunarLander-v3", "a2c"): _hp(1.5e6, 8, source=_ZOO_A2C + " (2e5 steps there)",
                                    gamma=0.995, n_steps=5, learning_rate="lin_0.00083",
                                    ent_coef=1e-5),
     ("CliffWalking-v1", "dqn"): _hp(5e4, **_OURS_TABULAR_DQN),
