@@ -69,6 +69,12 @@ def expert_evaluation(cfg: Config, task: str, algo: str) -> dict[str, float]:
                            codec="json", refresh=cfg.refresh)
 
 
+def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
+    """Return statistics and task outcome rates over the profile's final episodes."""
+    result = rollout(spec, act, final_seeds(cfg.final_episodes))
+    return {"mean_return": result.mean, "std_return": result.std, **episode_metrics(spec, result)}
+
+
 def evaluate_tree(cfg: Config, task: str, tree: Any) -> dict[str, float]:
     """A decision tree's final evaluation (cached on the tree's exact structure)."""
     params = {"task": task, "episodes": cfg.final_episodes,
@@ -76,10 +82,7 @@ def evaluate_tree(cfg: Config, task: str, tree: Any) -> dict[str, float]:
 
     def compute() -> dict[str, float]:
         spec = get_task(task)
-        result = rollout(spec, TreePolicy(spec, tree).act,
-                         final_seeds(cfg.final_episodes))
-        return {"mean_return": result.mean, "std_return": result.std,
-                **episode_metrics(spec, result)}
+        return _final_metrics(cfg, spec, TreePolicy(spec, tree).act)
 
     return load_or_compute("tree-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
                            refresh=cfg.refresh)
@@ -273,9 +276,7 @@ def evaluate_bt(cfg: Config, task: str, bt: Any) -> dict[str, float]:
 
     def compute() -> dict[str, float]:
         spec = get_task(task)
-        result = rollout(spec, BTPolicy(spec, bt).act, final_seeds(cfg.final_episodes))
-        return {"mean_return": result.mean, "std_return": result.std,
-                **episode_metrics(spec, result)}
+        return _final_metrics(cfg, spec, BTPolicy(spec, bt).act)
 
     return load_or_compute("bt-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
                            refresh=cfg.refresh)
