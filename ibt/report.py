@@ -394,7 +394,7 @@ def timings_markdown(res: Results) -> str:
         table = res.table(name)
         if table is None:
             continue
-        seconds = table.get("distill_seconds", table.get("wall_seconds", pd.Series([0]))).sum()
+        seconds = table.get("wall_seconds", pd.Series([0.0])).sum()
         lines.append(f"| {label} | {len(table)} | {seconds / 3600:.1f} h | "
                      f"machine: {res.manifest(name).get('machine', '?')} |")
     figures = res.results_dir / "make_figures.json"

@@ -52,8 +52,10 @@ def test_local_and_dask_grids_give_identical_rows(tmp_path):
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster:
         remote = run_grid(cluster_cfg, cells, scheduler=cluster.scheduler_address)
-    timing = ["wall_seconds", "distill_seconds"]
+    timing = ["wall_seconds"]
     pd.testing.assert_frame_equal(local.drop(columns=timing), remote.drop(columns=timing))
+    # from the cache the rows are identical to the last digit, timing included (stable CSVs)
+    pd.testing.assert_frame_equal(local, run_grid(cfg, cells, n_jobs=1))
     assert set(local.method) == {"bc", "imitation-bt"}
     assert (local.expert_labels >= 2 * TINY["labels_per_iteration"]).all()
 
