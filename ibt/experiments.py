@@ -68,6 +68,13 @@ def expert_evaluation(cfg: Config, task: str, algo: str) -> dict[str, float]:
                            codec="json", refresh=cfg.refresh)
 
 
+def _bt_digest(bt: Any) -> str:
+    """A BT's identity in cache keys: the digest of its JSON document."""
+    import hashlib
+
+    return hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]
+
+
 def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
     """Return statistics and task outcome rates over the profile's final episodes."""
     result = rollout(spec, act, final_seeds(cfg.final_episodes))
@@ -265,12 +272,9 @@ def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
 
 def evaluate_bt(cfg: Config, task: str, bt: Any) -> dict[str, float]:
     """A BT's final evaluation, rolled out in the environment (cached on its JSON)."""
-    import hashlib
-
     from ibt.policies import BTPolicy
 
-    params = {"task": task, "episodes": cfg.final_episodes,
-              "bt": hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]}
+    params = {"task": task, "episodes": cfg.final_episodes, "bt": _bt_digest(bt)}
 
     def compute() -> dict[str, float]:
         spec = get_task(task)
@@ -284,12 +288,10 @@ def executors_agree(cfg: Config, task: str, bt: Any, tree: Any, n_states: int = 
                     ) -> dict[str, Any]:
     """Do py_trees, the NumPy and compiled-Python executors and the sklearn tree decide alike
     on ``n_states`` random states of the task's box? (cached: py_trees ticks ~10^4 states/s)."""
-    import hashlib
-
     from ibt import speed
 
     params = {"task": task, "n_states": n_states, "tree": _signature(tree).hex(),
-              "bt": hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]}
+              "bt": _bt_digest(bt)}
 
     def compute() -> dict[str, Any]:
         states = get_task(task).sample_features(n_states, np.random.default_rng(0))
