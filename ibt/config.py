@@ -11,9 +11,11 @@ cached steps instead of loading them. ``config`` rejects unknown parameter names
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import difflib
 import os
+import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,8 +56,21 @@ def _paper(**kw: Any) -> dict[str, Any]:
             "refresh": False, "progress": True, **kw}
 
 
+_SMOKE_SCRATCH: list[Path] = []
+
+
+def _smoke_scratch() -> Path:
+    """``IBT_SMOKE_DIR``, or one scratch folder per process, removed when the process exits."""
+    if os.environ.get("IBT_SMOKE_DIR"):
+        return Path(os.environ["IBT_SMOKE_DIR"])
+    if not _SMOKE_SCRATCH:
+        _SMOKE_SCRATCH.append(Path(tempfile.mkdtemp(prefix="ibt-smoke-")))
+        atexit.register(shutil.rmtree, _SMOKE_SCRATCH[0], True)
+    return _SMOKE_SCRATCH[0]
+
+
 def _smoke(**kw: Any) -> dict[str, Any]:
-    scratch = Path(os.environ.get("IBT_SMOKE_DIR") or tempfile.mkdtemp(prefix="ibt-smoke-"))
+    scratch = _smoke_scratch()
     return {"cache_dir": scratch / "cache", "data_dir": scratch / "data",
             "figures_dir": scratch / "figures", "paper_dir": scratch / "paper",
             "n_iterations": 4, "labels_scale": 0.3, "selection_episodes": 3,

@@ -308,6 +308,7 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     """
     import torch
     from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
     task = get_task(task)
@@ -325,6 +326,8 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     policy_kwargs = {"net_arch": list(hp.net_arch)}
     model = _sb3_class(algo)("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
                              policy_kwargs=policy_kwargs, **kwargs)
+    # SB3's default logger creates an empty /tmp/SB3-<date> folder on every learn(): log nowhere
+    model.set_logger(Logger(folder=None, output_formats=[]))
     callback = None
     # keep the best checkpoint (training is not monotone); tiny smoke/test budgets skip it, as
     # its evaluations would cost far more than the training itself
@@ -336,13 +339,16 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
         callback = EvalCallback(eval_env, n_eval_episodes=EVAL_EPISODES,
                                 eval_freq=max(steps // EVAL_POINTS // hp.n_envs, 1),
                                 deterministic=True, best_model_save_path=scratch, verbose=0)
-    model.learn(total_timesteps=steps, progress_bar=progress, callback=callback)
-    wall = time.perf_counter() - start
-    if callback is not None:
-        best = Path(callback.best_model_save_path) / "best_model.zip"
-        if best.exists() and callback.best_mean_reward > _final_score(callback):
-            model = _sb3_class(algo).load(best, device="cpu")
-        shutil.rmtree(callback.best_model_save_path, ignore_errors=True)
+    try:
+        model.learn(total_timesteps=steps, progress_bar=progress, callback=callback)
+        wall = time.perf_counter() - start
+        if callback is not None:
+            best = Path(callback.best_model_save_path) / "best_model.zip"
+            if best.exists() and callback.best_mean_reward > _final_score(callback):
+                model = _sb3_class(algo).load(best, device="cpu")
+    finally:  # an interrupted training leaves no scratch folder behind
+        if callback is not None:
+            shutil.rmtree(callback.best_model_save_path, ignore_errors=True)
     atomic_save_model(model, path)
     norm_file = _norm_path(path)
     if hp.normalize:

@@ -68,3 +68,30 @@ def test_fast_scores_match_sb3_distribution():
         dist = expert.model.policy.get_distribution(expert._obs_tensor(obs))
         reference = torch.log_softmax(dist.distribution.logits, dim=-1).numpy()
     assert np.array_equal(expert.scores(obs), reference.astype(np.float64))
+
+
+def test_training_leaves_no_scratch_folders(tmp_path, monkeypatch):
+    """SB3's default logger and the checkpoint callback must not litter the temp folder."""
+    import tempfile
+
+    from ibt import experts
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    # evaluate checkpoints even on this tiny budget, so the callback's folder is exercised
+    monkeypatch.setattr(experts, "MIN_STEPS_FOR_CHECKPOINTS", 0)
+    monkeypatch.setattr(experts, "EVAL_POINTS", 1)
+    monkeypatch.setattr(experts, "EVAL_EPISODES", 1)
+    experts.train_expert("CartPole-v1", "dqn", tmp_path / "dqn.zip", timesteps=64, progress=False)
+    assert (tmp_path / "dqn.zip").exists()
+    ours = [p.name for p in scratch.iterdir() if p.name.startswith(("SB3-", "ibt-"))]
+    assert ours == []
+
+
+def test_smoke_profile_shares_one_scratch_folder_per_process(monkeypatch):
+    import ibt
+
+    monkeypatch.delenv("IBT_SMOKE_DIR", raising=False)
+    monkeypatch.delenv("IBT_PROFILE", raising=False)
+    assert ibt.config("smoke").cache_dir == ibt.config("smoke").cache_dir
