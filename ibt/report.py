@@ -64,7 +64,9 @@ def _fmt(x: float, digits: int = 1) -> str:
 
 
 def _cell(frame: pd.DataFrame, value: str = "retention_norm") -> str:
-    """``mean [low, high]`` of a column (95 % bootstrap CI over seeds)."""
+    """``mean [low, high]`` of a column (95 % bootstrap CI over seeds); one seed has no CI."""
+    if len(frame) < 2:
+        return f"{frame[value].mean():.1f} (1 seed)"
     low, high = bootstrap_ci(frame[value].to_numpy())
     return f"{frame[value].mean():.1f} [{low:.1f}, {high:.1f}]"
 

@@ -87,3 +87,10 @@ def test_timings_read_the_make_figures_record(tmp_path):
     (tmp_path / "results" / "make_figures.json").write_text(
         json.dumps({"seconds": 123.4, "machine": "x86_64, 2 cores", "date": "2026-11-22"}))
     assert "123 s" in report.timings_markdown(report.Results(tmp_path))
+
+
+def test_a_single_seed_is_marked_instead_of_a_fake_interval():
+    from ibt.report import _cell
+
+    assert _cell(pd.DataFrame({"retention_norm": [97.25]})) == "97.2 (1 seed)"
+    assert _cell(pd.DataFrame({"retention_norm": [90.0, 100.0]})).startswith("95.0 [")
