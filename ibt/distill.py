@@ -69,7 +69,7 @@ TASK_BUDGETS: dict[str, TaskBudget] = {
     "LunarLander-v3": TaskBudget(max_leaf_nodes=32, labels_per_iteration=2000),
     "CliffWalking-v1": TaskBudget(max_leaf_nodes=48, labels_per_iteration=200),
     "FrozenLake-v1": TaskBudget(max_leaf_nodes=16, labels_per_iteration=100),
-    # a slow simulator: a 10-iteration run takes 3-14 min here, 50 iterations about an hour
+    # a slow simulator: 10 iterations take 3-10 min here (plus evaluation), 50 about an hour
     "highway-fast-v0": TaskBudget(max_leaf_nodes=16, labels_per_iteration=300,
                                   max_iterations=10),
     "PackageDelivery-v0": TaskBudget(max_leaf_nodes=32, labels_per_iteration=1000),

@@ -94,3 +94,14 @@ def test_a_single_seed_is_marked_instead_of_a_fake_interval():
 
     assert _cell(pd.DataFrame({"retention_norm": [97.25]})) == "97.2 (1 seed)"
     assert _cell(pd.DataFrame({"retention_norm": [90.0, 100.0]})).startswith("95.0 [")
+
+
+def test_a_tie_with_the_best_method_counts_as_best_on_stochastic_tasks(tmp_path):
+    cells = {(task, "ppo", method): 100.0 for task in report.STOCHASTIC_TASKS
+             for method in ("bc", "viper", "imitation-bt")}
+    _write(tmp_path, "distillation", _grid(cells))
+    assert report.claim_stochastic(report.Results(tmp_path)).verdict == "reproduced"
+    cells[("highway-fast-v0", "ppo", "viper")] = 101.0
+    _write(tmp_path, "distillation", _grid(cells))
+    claim = report.claim_stochastic(report.Results(tmp_path))
+    assert claim.verdict == "partly" and "best viper" in claim.measured
