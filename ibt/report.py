@@ -133,10 +133,9 @@ def claim_stochastic(res: Results) -> Claim:
         # a tie with the best counts as best (e.g. every method at 100 %)
         best = ("imitation-bt" if ours >= rows.retention_norm.max() - 1e-9
                 else rows.retention_norm.idxmax())
-        seeds = int(rows.loc["imitation-bt", "n"]) if "n" in rows else 3
         cells.append((task, expert, ours, best, rows.retention_norm.max(),
                       rows.loc["bc", "retention_norm"] if "bc" in rows.index else np.nan,
-                      seeds))
+                      int(rows.loc["imitation-bt", "n"])))
     if not cells:
         return _not_measured(title, paper, "no LunarLander or highway runs", "")
     wins = sum(1 for c in cells if c[3] == "imitation-bt")
