@@ -54,7 +54,9 @@ lint: setup ## ruff over the package, tests and notebooks
 
 test: setup lint ## ruff + unit/property tests + every notebook under the smoke profile (nbval)
 	$(BIN)/python -m pytest -m "not slow" -q
-	IBT_PROFILE=smoke $(BIN)/python -m pytest --nbval-lax -q notebooks
+	@rm -rf build/smoke-scratch
+	IBT_PROFILE=smoke IBT_SMOKE_DIR=$(CURDIR)/build/smoke-scratch $(BIN)/python -m pytest --nbval-lax -q notebooks
+	@rm -rf build/smoke-scratch  # nbval kills its kernels, so their own scratch folders would stay
 
 test-slow: setup ## the slow tests too (training determinism, full-size runs)
 	$(BIN)/python -m pytest -q
