@@ -12,7 +12,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -116,6 +116,18 @@ def claim_simple_tasks(res: Results) -> Claim:
     return Claim(title, paper, measured, verdict, reason, "figures/retention.png")
 
 
+class _StochasticCell(NamedTuple):
+    """One (task, expert) of the stochastic-task claim."""
+
+    task: str
+    expert: str
+    ours: float
+    best_method: str
+    best: float
+    bc: float
+    seeds: int
+
+
 def claim_stochastic(res: Results) -> Claim:
     title = "Highest retention on the stochastic tasks"
     paper = ("on LunarLander and highway every method loses performance, Imitation-BT the "
@@ -133,26 +145,29 @@ def claim_stochastic(res: Results) -> Claim:
         # a tie with the best counts as best (e.g. every method at 100 %)
         best = ("imitation-bt" if ours >= rows.retention_norm.max() - 1e-9
                 else rows.retention_norm.idxmax())
-        cells.append((task, expert, ours, best, rows.retention_norm.max(),
-                      rows.loc["bc", "retention_norm"] if "bc" in rows.index else np.nan,
-                      int(rows.loc["imitation-bt", "n"])))
+        cells.append(_StochasticCell(
+            task, expert, ours, best, rows.retention_norm.max(),
+            rows.loc["bc", "retention_norm"] if "bc" in rows.index else np.nan,
+            int(rows.loc["imitation-bt", "n"])))
     if not cells:
         return _not_measured(title, paper, "no LunarLander or highway runs", "")
-    wins = sum(1 for c in cells if c[3] == "imitation-bt")
-    measured = "; ".join(f"{t}/{e}{' (1 seed)' if n == 1 else ''}: Imitation-BT {v:.1f}, best "
-                         f"{b} {m:.1f}, BC {bc:.1f}" for t, e, v, b, m, bc, n in cells)
-    missing = sorted({t for t in STOCHASTIC_TASKS} - {c[0] for c in cells})
+    wins = sum(1 for c in cells if c.best_method == "imitation-bt")
+    above_bc = sum(c.ours >= c.bc for c in cells)
+    measured = "; ".join(f"{c.task}/{c.expert}{' (1 seed)' if c.seeds == 1 else ''}: "
+                         f"Imitation-BT {c.ours:.1f}, best {c.best_method} {c.best:.1f}, "
+                         f"BC {c.bc:.1f}" for c in cells)
+    missing = sorted(set(STOCHASTIC_TASKS) - {c.task for c in cells})
     note = f" (not measured: {', '.join(missing)})" if missing else ""
     if wins == len(cells) and not missing:
         verdict, reason = "reproduced", "Imitation-BT has the highest mean retention everywhere"
     elif wins > 0:
         verdict = "partly"
         reason = (f"Imitation-BT is best in {wins} of {len(cells)} cells and at least as good "
-                  f"as BC in {sum(c[2] >= c[5] for c in cells)}{note}")
+                  f"as BC in {above_bc}{note}")
     else:
         verdict = "not reproduced"
         reason = (f"Imitation-BT is best in no cell, though at least as good as BC in "
-                  f"{sum(c[2] >= c[5] for c in cells)} of {len(cells)}{note}")
+                  f"{above_bc} of {len(cells)}{note}")
     return Claim(title, paper, measured, verdict, reason, "figures/retention.png")
 
 
