@@ -63,7 +63,8 @@ class TaskBudget:
 
 
 TASK_BUDGETS: dict[str, TaskBudget] = {
-    "CartPole-v1": TaskBudget(max_leaf_nodes=8, labels_per_iteration=1000),
+    # the size sweep (notebook 03): 8 leaves keep 97.7 % of the DQN expert, 12 and 16 keep > 99 %
+    "CartPole-v1": TaskBudget(max_leaf_nodes=12, labels_per_iteration=1000),
     "Acrobot-v1": TaskBudget(max_leaf_nodes=16, labels_per_iteration=1000),
     "MountainCar-v0": TaskBudget(max_leaf_nodes=8, labels_per_iteration=1000),
     "LunarLander-v3": TaskBudget(max_leaf_nodes=32, labels_per_iteration=2000),
