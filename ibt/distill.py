@@ -70,7 +70,7 @@ TASK_BUDGETS: dict[str, TaskBudget] = {
     "LunarLander-v3": TaskBudget(max_leaf_nodes=32, labels_per_iteration=2000),
     "CliffWalking-v1": TaskBudget(max_leaf_nodes=48, labels_per_iteration=200),
     "FrozenLake-v1": TaskBudget(max_leaf_nodes=16, labels_per_iteration=100),
-    # a slow simulator: 10 iterations take 3-10 min here (plus evaluation), 50 about an hour
+    # a slow simulator: 10 iterations take 3-23 min here (plus evaluation), 50 one to two hours
     "highway-fast-v0": TaskBudget(max_leaf_nodes=16, labels_per_iteration=300,
                                   max_iterations=10),
     "PackageDelivery-v0": TaskBudget(max_leaf_nodes=32, labels_per_iteration=1000),

@@ -23,6 +23,8 @@ SIMPLE_TASKS = ("CartPole-v1", "Acrobot-v1", "MountainCar-v0", "CliffWalking-v1"
                 "FrozenLake-v1", "PackageDelivery-v0")
 STOCHASTIC_TASKS = ("LunarLander-v3", "highway-fast-v0")
 METHODS = ("bc", "dagger", "viper", "imitation-bt", "bt-espresso", "re-bt-espresso")
+# the issue's minimum seeds per cell; a cell with fewer says how many it has
+MIN_SEEDS = 3
 README_BEGIN = "<!-- results:begin (written by notebooks/07_report.ipynb) -->"
 README_END = "<!-- results:end -->"
 
@@ -64,11 +66,21 @@ def _fmt(x: float, digits: int = 1) -> str:
 
 
 def _cell(frame: pd.DataFrame, value: str = "retention_norm") -> str:
-    """``mean [low, high]`` of a column (95 % bootstrap CI over seeds); one seed has no CI."""
+    """``mean [low, high]`` of a column (95 % bootstrap CI over seeds); one seed has no CI.
+
+    Cells with fewer than :data:`MIN_SEEDS` seeds name their seed count.
+    """
     if len(frame) < 2:
-        return f"{frame[value].mean():.1f} (1 seed)"
+        return f"{frame[value].mean():.1f}{_few_seeds(len(frame))}"
     low, high = bootstrap_ci(frame[value].to_numpy())
-    return f"{frame[value].mean():.1f} [{low:.1f}, {high:.1f}]"
+    return f"{frame[value].mean():.1f} [{low:.1f}, {high:.1f}]{_few_seeds(len(frame))}"
+
+
+def _few_seeds(n: int) -> str:
+    """`` (n seeds)`` below the minimum seed count, else nothing."""
+    if n >= MIN_SEEDS:
+        return ""
+    return f" ({n} seed{'s' if n != 1 else ''})"
 
 
 def retention_summary(res: Results) -> pd.DataFrame | None:
@@ -153,7 +165,7 @@ def claim_stochastic(res: Results) -> Claim:
         return _not_measured(title, paper, "no LunarLander or highway runs", "")
     wins = sum(1 for c in cells if c.best_method == "imitation-bt")
     above_bc = sum(c.ours >= c.bc for c in cells)
-    measured = "; ".join(f"{c.task}/{c.expert}{' (1 seed)' if c.seeds == 1 else ''}: "
+    measured = "; ".join(f"{c.task}/{c.expert}{_few_seeds(c.seeds)}: "
                          f"Imitation-BT {c.ours:.1f}, best {c.best_method} {c.best:.1f}, "
                          f"BC {c.bc:.1f}" for c in cells)
     missing = sorted(set(STOCHASTIC_TASKS) - {c.task for c in cells})

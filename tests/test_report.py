@@ -89,10 +89,12 @@ def test_timings_read_the_make_figures_record(tmp_path):
     assert "123 s" in report.timings_markdown(report.Results(tmp_path))
 
 
-def test_a_single_seed_is_marked_instead_of_a_fake_interval():
+def test_cells_below_the_minimum_seeds_say_how_many_they_have():
     from ibt.report import _cell
 
     assert _cell(pd.DataFrame({"retention_norm": [97.25]})) == "97.2 (1 seed)"
+    assert _cell(pd.DataFrame({"retention_norm": [97.0, 99.0]})).endswith("] (2 seeds)")
+    assert "seed" not in _cell(pd.DataFrame({"retention_norm": [97.0, 98.0, 99.0]}))
     assert _cell(pd.DataFrame({"retention_norm": [90.0, 100.0]})).startswith("95.0 [")
 
 
