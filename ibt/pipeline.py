@@ -29,7 +29,7 @@ def distill_config(cfg: Config, task: str, method: str = "imitation-bt", **overr
     labels = max(50, round(budget.labels_per_iteration * cfg.labels_scale))
     iterations = min(cfg.n_iterations, budget.max_iterations or cfg.n_iterations)
     settings = {"n_iterations": iterations, "labels_per_iteration": labels,
-                "selection_episodes": cfg.selection_episodes, **overrides}
+                "selection_episodes": cfg.selection_episodes * budget.selection_scale, **overrides}
     return DistillConfig.for_task(task, method=method, **settings)
 
 

@@ -96,3 +96,19 @@ def test_budget_runs_whole_episodes():
     assert result.lengths.sum() >= 50
     assert len(result.returns) < 100
     assert all(result.terminated | (result.lengths == 500))
+
+
+def test_task_budgets_scale_the_profile_settings_alike_for_every_method():
+    import ibt
+    from ibt.pipeline import distill_config
+
+    paper = ibt.config("paper")
+    for method in METHODS:
+        assert distill_config(paper, "CartPole-v1", method).selection_episodes == 20
+        delivery = distill_config(paper, "PackageDelivery-v0", method)
+        assert delivery.selection_episodes == 100 and delivery.max_leaf_nodes == 32
+        assert distill_config(paper, "highway-fast-v0", method).n_iterations == 10
+    smoke = ibt.config("smoke")
+    assert distill_config(smoke, "PackageDelivery-v0").selection_episodes == 15
+    assert distill_config(paper, "PackageDelivery-v0", selection_episodes=7
+                          ).selection_episodes == 7
