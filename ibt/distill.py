@@ -52,7 +52,7 @@ METHODS: dict[str, Method] = {
 
 @dataclass(frozen=True)
 class TaskBudget:
-    """Per-task settings shared by every method: tree size limits and the label budget."""
+    """Per-task settings shared by every method: tree size, label and selection budgets."""
 
     max_leaf_nodes: int | None = None
     max_depth: int | None = None
