@@ -159,11 +159,24 @@ def mix(expert_actions: np.ndarray, learner_actions: np.ndarray, beta: float,
     return np.where(use_expert, expert_actions, learner_actions)
 
 
-def _signature(tree: DecisionTreeClassifier) -> bytes:
+def tree_signature(tree: DecisionTreeClassifier) -> bytes:
+    """A fitted tree's decision function as bytes: equal bytes, equal decisions.
+
+    The splits (features, thresholds, children), each node's predicted class index and
+    ``classes_`` (so labels {0, 1} and {0, 2} differ), behind a header of the sizes. Leaf
+    sample counts are left out. Keys the scores within a run and, hashed, the cache entries
+    computed from a tree.
+    """
     t = tree.tree_
-    parts = [t.feature, t.threshold, t.children_left, t.children_right,
+    classes = np.asarray(tree.classes_)
+    head = np.array([t.node_count, len(classes), tree.n_features_in_], dtype=np.int64)
+    parts = [head, t.feature, t.threshold, t.children_left, t.children_right,
              np.argmax(t.value[:, 0, :], axis=1)]
-    return b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
+    return (b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
+            + repr(classes.tolist()).encode())
+
+
+_signature = tree_signature  # the former private name (kept for existing callers)
 
 
 def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
@@ -215,7 +228,7 @@ def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int =
                                       random_state=seed)
         tree.fit(x, y)
         learner = CompiledTree(tree)
-        key = _signature(tree)
+        key = tree_signature(tree)
         if key not in scored:
             result = rollout(task, learner_policy(task, learner), eval_seeds,
                              n_envs=config.eval_envs)

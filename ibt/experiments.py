@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from ibt.artifacts import file_digest, load_or_compute
 from ibt.config import Config
-from ibt.distill import METHODS, _signature
+from ibt.distill import METHODS, tree_signature
 from ibt.evaluate import episode_metrics, final_seeds, retention_norm, retention_raw, rollout
 from ibt.experts import expert_path, load_expert
 from ibt.pipeline import distill_cached
@@ -75,6 +75,13 @@ def _bt_digest(bt: Any) -> str:
     return hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]
 
 
+def tree_digest(tree: Any) -> str:
+    """A decision tree's identity in cache keys: the digest of :func:`tree_signature`."""
+    import hashlib
+
+    return hashlib.sha256(tree_signature(tree)).hexdigest()[:16]
+
+
 def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
     """Return statistics and task outcome rates over the profile's final episodes."""
     result = rollout(spec, act, final_seeds(cfg.final_episodes))
@@ -83,8 +90,7 @@ def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
 
 def evaluate_tree(cfg: Config, task: str, tree: Any) -> dict[str, float]:
     """A decision tree's final evaluation (cached on the tree's exact structure)."""
-    params = {"task": task, "episodes": cfg.final_episodes,
-              "tree": _signature(tree).hex()}
+    params = {"task": task, "episodes": cfg.final_episodes, "tree": tree_digest(tree)}
 
     def compute() -> dict[str, float]:
         spec = get_task(task)
@@ -213,8 +219,6 @@ def seed_best(results: pd.DataFrame, task: str, algo: str, method: str) -> int:
 
 
 BT_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso")
-#: Bump when synthesis, verification or the synthesis row changes: cached rows are recomputed.
-SYNTHESIS_VERSION = 1
 
 
 def _synthesize(tree: Any, spec: Any, method: str) -> Any:
@@ -242,8 +246,7 @@ def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
     spec = get_task(task)
     tree = distill_cached(cfg, spec.name, algo, source_method, seed, **overrides).best_tree
     params = {"task": spec.name, "algo": algo, "method": method, "seed": seed,
-              "source_method": source_method, "tree": _signature(tree).hex(),
-              "version": SYNTHESIS_VERSION}
+              "source_method": source_method, "tree": tree_digest(tree)}
 
     def compute() -> dict[str, Any]:
         result = _synthesize(tree, spec, method)
@@ -290,7 +293,7 @@ def executors_agree(cfg: Config, task: str, bt: Any, tree: Any, n_states: int = 
     on ``n_states`` random states of the task's box? (cached: py_trees ticks ~10^4 states/s)."""
     from ibt import speed
 
-    params = {"task": task, "n_states": n_states, "tree": _signature(tree).hex(),
+    params = {"task": task, "n_states": n_states, "tree": tree_digest(tree),
               "bt": _bt_digest(bt)}
 
     def compute() -> dict[str, Any]:

@@ -55,7 +55,16 @@ def test_mismatched_expert_is_refused(tmp_path):
         load_expert("MountainCar-v0", "ppo", other)
 
 
-def test_cache_hit_miss_and_atomicity(tmp_path):
+@pytest.fixture
+def demo_kind(monkeypatch):
+    """A cache kind of the tests' own, at code version 1."""
+    from ibt import artifacts
+
+    monkeypatch.setitem(artifacts.CODE_VERSIONS, "demo", 1)
+    return artifacts.CODE_VERSIONS
+
+
+def test_cache_hit_miss_and_atomicity(tmp_path, demo_kind):
     calls = []
 
     def compute():

@@ -1,0 +1,132 @@
+"""Cache keys carry code and package versions; stale entries are listed, pruned, migrated."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from sklearn.tree import DecisionTreeClassifier
+
+from ibt import artifacts, cache
+from ibt.artifacts import cache_key, is_cached, legacy_cache_key, load_or_compute
+from ibt.distill import tree_signature
+
+
+@pytest.fixture
+def demo(monkeypatch):
+    monkeypatch.setitem(artifacts.CODE_VERSIONS, "demo", 1)
+    return artifacts.CODE_VERSIONS
+
+
+def _count(calls):
+    def compute():
+        calls.append(1)
+        return {"n": len(calls)}
+    return compute
+
+
+def test_a_bumped_code_version_misses(tmp_path, demo):
+    calls: list[int] = []
+    params = {"a": 1}
+    load_or_compute("demo", params, _count(calls), cache_dir=tmp_path, codec="json")
+    load_or_compute("demo", params, _count(calls), cache_dir=tmp_path, codec="json")
+    assert len(calls) == 1  # a hit
+    demo["demo"] = 2
+    assert not is_cached("demo", params, cache_dir=tmp_path)
+    assert load_or_compute("demo", params, _count(calls), cache_dir=tmp_path,
+                           codec="json") == {"n": 2}
+    # Expect: the old entry is stale (listed and pruned), the new one current
+    found = {e.status for e in cache.entries(tmp_path)}
+    assert found == {"stale", "current"}
+    stale = [e for e in cache.entries(tmp_path) if e.status == "stale"]
+    assert "code version 1 (now 2)" in stale[0].reason
+    assert [e.status for e in cache.prune(tmp_path)] == ["stale"]
+    assert [e.status for e in cache.entries(tmp_path)] == ["current"]
+
+
+def test_an_upgraded_package_misses(tmp_path, demo, monkeypatch):
+    calls: list[int] = []
+    load_or_compute("demo", {"a": 1}, _count(calls), cache_dir=tmp_path, codec="json")
+    real = artifacts.key_packages()
+    assert set(real) == {"gymnasium", "highway-env", "scikit-learn", "stable-baselines3"}
+    monkeypatch.setattr(artifacts, "key_packages", lambda: {**real, "scikit-learn": "99.0"})
+    monkeypatch.setattr(cache, "key_packages", lambda: {**real, "scikit-learn": "99.0"})
+    assert not is_cached("demo", {"a": 1}, cache_dir=tmp_path)
+    (entry,) = cache.entries(tmp_path)
+    assert entry.status == "stale" and "scikit-learn" in entry.reason
+
+
+def test_unknown_kind_is_an_error(tmp_path):
+    with pytest.raises(KeyError, match=r"add it to ibt\.artifacts\.CODE_VERSIONS"):
+        load_or_compute("no-such-kind", {}, dict, cache_dir=tmp_path, codec="json")
+
+
+def test_manifest_recomputes_its_key(tmp_path, demo):
+    load_or_compute("demo", {"a": [1, 2]}, dict, cache_dir=tmp_path, codec="json")
+    (folder,) = (tmp_path / "demo").iterdir()
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["code_version"] == 1
+    assert cache_key("demo", manifest["params"], version=manifest["code_version"],
+                     packages=manifest["key_packages"]) == folder.name
+    # a renamed folder is an orphan; a folder without manifest is incomplete
+    folder.rename(tmp_path / "demo" / "0000000000000000")
+    (tmp_path / "demo" / "1111111111111111").mkdir()
+    assert [e.status for e in cache.entries(tmp_path)] == ["orphan", "incomplete"]
+    assert len(cache.prune(tmp_path, dry_run=True)) == 2
+    assert len(list(cache.entries(tmp_path))) == 2  # a dry run removes nothing
+
+
+def test_reads_log_lists_unread_entries(tmp_path, demo, monkeypatch):
+    load_or_compute("demo", {"a": 1}, dict, cache_dir=tmp_path / "c", codec="json")
+    load_or_compute("demo", {"a": 2}, dict, cache_dir=tmp_path / "c", codec="json")
+    monkeypatch.setenv(artifacts.READS_ENV, str(tmp_path / "reads"))
+    load_or_compute("demo", {"a": 1}, dict, cache_dir=tmp_path / "c", codec="json")
+    reads = cache.read_log(tmp_path / "reads")
+    assert reads == {f"demo/{cache_key('demo', {'a': 1})}"}
+    unread = cache.not_current(tmp_path / "c", reads)
+    assert [(e.status, e.key) for e in unread] == [("unread", cache_key("demo", {"a": 2}))]
+
+
+def _tree(labels: list[int]) -> DecisionTreeClassifier:
+    x = np.array([[0.0], [1.0], [2.0], [3.0]])
+    return DecisionTreeClassifier(max_leaf_nodes=2, random_state=0).fit(x, labels)
+
+
+def test_signature_distinguishes_class_labels():
+    a, b = _tree([0, 0, 1, 1]), _tree([0, 0, 2, 2])
+    # Expect: the same splits and class indices, other labels: other decisions
+    assert np.array_equal(a.tree_.threshold, b.tree_.threshold)
+    assert a.predict([[3.0]])[0] != b.predict([[3.0]])[0]
+    assert tree_signature(a) != tree_signature(b)
+    assert tree_signature(a) == tree_signature(_tree([0, 0, 1, 1]))
+    assert cache._old_signature(a) == cache._old_signature(b)  # the collision that was
+
+
+def _legacy_entry(root, kind, params, payload):
+    folder = root / kind / legacy_cache_key(kind, params)
+    folder.mkdir(parents=True)
+    (folder / "payload.json").write_text(json.dumps(payload))
+    (folder / "manifest.json").write_text(json.dumps(
+        {"kind": kind, "params": params, "codec": "json",
+         "versions": artifacts.package_versions()}))
+    return folder
+
+
+def test_migration_rekeys_only_entries_with_current_versions(tmp_path, demo):
+    keep = _legacy_entry(tmp_path, "demo", {"a": 1}, {"x": 1})
+    old = _legacy_entry(tmp_path, "demo", {"a": 2}, {"x": 2})
+    manifest = json.loads((old / "manifest.json").read_text())
+    manifest["versions"]["scikit-learn"] = "0.1"
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    assert {e.status for e in cache.entries(tmp_path)} == {"legacy"}
+    report = cache.migrate(tmp_path)
+    assert report.migrated["demo"] == 1 and len(report.refused) == 1
+    assert "scikit-learn" in report.refused[0][1]
+    assert not keep.exists() and old.exists()
+    # Expect: the migrated entry is a hit under today's key, with the same payload
+    assert load_or_compute("demo", {"a": 1}, lambda: {"x": "recomputed"}, cache_dir=tmp_path,
+                           codec="json") == {"x": 1}
+    assert cache.migrate(tmp_path).migrated == {}  # a re-run changes nothing more
+    assert cache.main(["stale", "--cache-dir", str(tmp_path)]) == 0
+    assert cache.main(["stale", "--cache-dir", str(tmp_path / "none")]) == 2
