@@ -13,7 +13,7 @@ import tempfile
 from pathlib import Path
 
 from ibt.artifacts import atomic_write_text
-from ibt.bt import Action, BehaviorTree, Condition, Inverter, Sequence, iterate
+from ibt.bt import Action, BehaviorTree, Condition, Inverter, Sequence, indexed
 
 _GLYPH = {"selector": "?", "fallback": "?", "sequence": "→", "inverter": "¬"}
 
@@ -52,9 +52,8 @@ def to_graphviz(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
                                          "ordering": "out"},
                              node_attr={"fontname": "Helvetica", "fontsize": "11"},
                              edge_attr={"fontname": "Helvetica", "fontsize": "9"})
-    nodes = list(iterate(bt.root))
-    index = {id(n): i for i, n in enumerate(nodes)}
-    for i, node in enumerate(nodes):
+    # positions from one traversal: a node object used twice is drawn twice (see bt.indexed)
+    for i, (node, children) in enumerate(indexed(bt.root)):
         attrs: dict[str, str] = {}
         if isinstance(node, Condition):
             attrs = {"label": bt.label(node, precision), "shape": "ellipse"}
@@ -70,8 +69,8 @@ def to_graphviz(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
             attrs["color"] = "#1a9641" if highlight[i] else "#d7191c"
             attrs["penwidth"] = "3"
         graph.node(f"n{i}", **attrs)
-        for child in getattr(node, "children", ()):
-            graph.edge(f"n{i}", f"n{index[id(child)]}")
+        for child in children:
+            graph.edge(f"n{i}", f"n{child}")
     return graph
 
 

@@ -13,7 +13,7 @@ from typing import Protocol
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.bt import BehaviorTree, as_features
+from ibt.bt import NO_DECISION, BehaviorTree, as_features
 from ibt.tasks import Task
 
 
@@ -84,7 +84,12 @@ class BTPolicy:
         self.bt = bt
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        return self.bt.decide(self.task.features(obs))
+        decisions = self.bt.decide(self.task.features(obs))
+        if (decisions == NO_DECISION).any():  # never send "no action" to the environment
+            row = int(np.argmax(decisions == NO_DECISION))
+            raise RuntimeError(f"the BT reaches no action on the observation "
+                               f"{np.asarray(obs)[row].tolist()}; bt.validate() says why")
+        return decisions
 
 
 class RandomPolicy:
