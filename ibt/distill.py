@@ -65,6 +65,7 @@ class TaskBudget:
     selection_scale: int = 1
 
 
+DEFAULT_MAX_LEAF_NODES = 16  # the leaf limit of tasks without a budget (a readable BT)
 TASK_BUDGETS: dict[str, TaskBudget] = {
     # the size sweep (notebook 03): 8 leaves keep 97.7 % of the DQN expert, 12 and 16 keep > 99 %
     "CartPole-v1": TaskBudget(max_leaf_nodes=12, labels_per_iteration=1000),
@@ -83,7 +84,7 @@ TASK_BUDGETS: dict[str, TaskBudget] = {
 
 
 def task_budget(task: str | Task) -> TaskBudget:
-    return TASK_BUDGETS.get(get_task(task).name, TaskBudget())
+    return TASK_BUDGETS.get(get_task(task).name, TaskBudget(max_leaf_nodes=DEFAULT_MAX_LEAF_NODES))
 
 
 @dataclass(frozen=True)
