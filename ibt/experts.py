@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import json
+import shlex
 import shutil
 import tempfile
 import time
@@ -241,10 +242,41 @@ def load_expert(task: str | Task, algo: str, path: str | Path | None = None) -> 
     algo = check_algo(algo)
     path = Path(path) if path is not None else expert_path(task, algo)
     if not path.exists():
-        raise FileNotFoundError(f"no expert checkpoint at {path}; train one with "
-                                f"`python -m ibt train {task.name} {algo}` (or `make reproduce`)")
+        raise FileNotFoundError(f"no expert checkpoint at {path}; {_train_hint(task, algo, path)}")
     stat = path.stat()
     return _load_cached(task.name, algo, str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+def _train_hint(task: Task, algo: str, path: Path | None = None) -> str:
+    """How to get a checkpoint for (task, algo) at ``path``: a command that works."""
+    if (task.name, algo) not in HYPERPARAMS:
+        return ("train one with Stable-Baselines3 (model.save) and pass it with --checkpoint "
+                "(`python -m ibt train` knows the tasks of ibt.experts.HYPERPARAMS only)")
+    command = f"python -m ibt train {task.name} --algo {algo}"
+    default = expert_path(task, algo)
+    if path is None or path.resolve() == default.resolve():
+        return f"train one with `{command}` (it writes {default})"
+    if path.name == f"{algo}.zip" and path.parent.name == task.name:
+        return f"train one with `{command} --experts-dir {shlex.quote(str(path.parent.parent))}`"
+    where = path.parent / task.name / f"{algo}.zip"
+    return (f"train one with `{command} --experts-dir {shlex.quote(str(path.parent))}` and pass "
+            f"--checkpoint {shlex.quote(str(where))}")
+
+
+def _checkpoint_algo(path: str | Path) -> str | None:
+    """The algorithm an SB3 checkpoint was saved by (from its ``data`` entry), if readable."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+    if "exploration_schedule" in data or "target_update_interval" in data:
+        return "dqn"
+    if "clip_range" in data:
+        return "ppo"
+    if "vf_coef" in data:
+        return "a2c"
+    return None
 
 
 @functools.lru_cache(maxsize=64)
@@ -255,15 +287,23 @@ def _load_cached(task_name: str, algo: str, path: str, _mtime: int, _size: int) 
     # processes run side by side), and one thread keeps results bit-identical across runs.
     torch.set_num_threads(1)
     task = resolve_task(task_name)
+    if Path(path).is_dir():
+        inside = sorted(Path(path).glob(f"**/{algo}.zip"))[:1]
+        raise ValueError(f"{path} is a folder, not a Stable-Baselines3 checkpoint; pass the "
+                         "checkpoint file" + (f", e.g. {inside[0]}" if inside else ""))
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path} is not a Stable-Baselines3 checkpoint (not a zip archive); "
-                         f"delete it and retrain with `python -m ibt train {task.name} {algo}`")
+                         f"pass the .zip that model.save wrote, or {_train_hint(task, algo)}")
+    saved_by = _checkpoint_algo(path)
+    if saved_by is not None and saved_by != algo:
+        raise ValueError(f"{path} is a {saved_by.upper()} checkpoint, not a {algo.upper()} one; "
+                         f"pass {saved_by} as the algorithm")
     try:
         model = _sb3_class(algo).load(path, device="cpu")
     except Exception as err:  # SB3 raises many kinds on a damaged archive
         raise ValueError(f"{path} is a corrupt or incompatible {algo.upper()} checkpoint "
-                         f"({type(err).__name__}: {err}); delete it and retrain with "
-                         f"`python -m ibt train {task.name} {algo}`") from None
+                         f"({type(err).__name__}: {err}); replace it: "
+                         f"{_train_hint(task, algo)}") from None
     n = getattr(model.action_space, "n", None)
     if n is None or int(n) != task.n_actions:
         raise ValueError(f"{path} acts in {model.action_space}, but {task.name} has "

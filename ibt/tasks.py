@@ -3,14 +3,17 @@
 A :class:`Task` names an environment's features and actions, maps raw observations to the
 feature vectors the trees see, and carries a box of plausible feature values used to sample
 random states when testing that a BT decides exactly as its tree. Users can add their own task
-with :func:`register_task`.
+with :func:`register_task`, or bring their own environment: :func:`import_env_module` imports a
+module that registers gymnasium environments (and, optionally, tasks), and :func:`resolve_task`
+accepts gymnasium's ``module:EnvId`` form.
 """
 
 from __future__ import annotations
 
 import csv
 import difflib
-from dataclasses import dataclass, field
+import importlib
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -102,7 +105,7 @@ class Task:
                     if row["task"] == self.name:
                         return float(row["mean_return"])
         raise LookupError(f"no random-policy return for {self.name} in {path}; "
-                          "run `python -m ibt random-baselines` (or `make reproduce`)")
+                          f"run `python -m ibt random-baselines {self.name}`")
 
 
 _SPACES: dict[str, Any] = {}
@@ -137,7 +140,8 @@ def get_task(name: str | Task) -> Task:
         close = difflib.get_close_matches(name, TASKS, n=3)
         hint = f" Did you mean {', '.join(close)}?" if close else ""
         raise KeyError(f"unknown task {name!r}.{hint} Known tasks: {', '.join(TASKS)}; "
-                       "add your own with ibt.tasks.register_task(...)") from None
+                       "bring your own environment with --env-module MODULE (command line) or "
+                       "ibt.tasks.register_task (Python)") from None
 
 
 def _highway_features() -> tuple[str, ...]:
@@ -226,6 +230,9 @@ def task_from_env(gym_id: str, **kwargs: Any) -> Task:
     except gym.error.Error as err:
         raise KeyError(f"unknown environment id {gym_id!r} ({err}); registered tasks: "
                        f"{', '.join(TASKS)}") from None
+    except Exception as err:  # the environment's own constructor failed
+        raise ValueError(f"making the environment {gym_id!r} failed ({type(err).__name__}: "
+                         f"{err}); fix its constructor or its registered kwargs") from None
     obs_space, act_space = env.observation_space, env.action_space
     env.close()
     if not isinstance(act_space, gym.spaces.Discrete):
@@ -245,12 +252,39 @@ def task_from_env(gym_id: str, **kwargs: Any) -> Task:
                 kwargs=kwargs)
 
 
+def import_env_module(name: str) -> None:
+    """Import a user's module that registers gymnasium environments (and, optionally, tasks
+    with :func:`register_task`); ``LookupError`` says why it could not be imported."""
+    try:
+        importlib.import_module(name)
+    except ModuleNotFoundError as err:
+        if err.name is not None and (name + ".").startswith(err.name + "."):
+            raise LookupError(f"cannot import the environment module {name!r}: no module named "
+                              f"{err.name!r}; put the folder that holds it on PYTHONPATH or "
+                              "install it") from None
+        raise LookupError(f"the environment module {name!r} failed to import: {err}") from None
+    except Exception as err:  # the module's own code failed
+        raise LookupError(f"the environment module {name!r} failed to import "
+                          f"({type(err).__name__}: {err}); fix the module") from None
+
+
 def resolve_task(name: str) -> Task:
-    """A registered task, else one built from a gymnasium env id (:func:`task_from_env`)."""
+    """A registered task, else one built from a gymnasium env id (:func:`task_from_env`).
+
+    Gymnasium's ``module:EnvId`` form imports ``module`` first (it registers ``EnvId``); the
+    task is then ``EnvId``, and its environments import ``module`` wherever they are made.
+    """
+    module = None
+    if ":" in name:
+        module, _, name = name.partition(":")
+        if not module or not name:
+            raise LookupError(f"{module}:{name} is not of the form MODULE:EnvId")
+        import_env_module(module)
     if name in TASKS:
         return TASKS[name]
     if name in gym.registry:
-        return task_from_env(name)
+        task = task_from_env(name)
+        return replace(task, setup_module=module) if module and not task.setup_module else task
     return get_task(name)  # raises with the closest registered names
 
 

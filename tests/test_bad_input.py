@@ -1,0 +1,272 @@
+"""Bad input at every boundary of the command line: exit code 2, one line, nothing written.
+
+Each row of :data:`CASES` is a command that must fail before doing any work: a bad BT file
+(NaN threshold, fractional index, no reachable action ...), a bad or mismatched tree file, a
+number out of range, an output path that cannot be written, an environment module that cannot
+be imported, a checkpoint of another kind. The test runs it, expects exit code 2, exactly one
+line on stderr containing the expected words, nothing on stdout, and no file left behind.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import joblib
+import numpy as np
+import pytest
+from sklearn.tree import DecisionTreeClassifier
+
+from ibt.cli import main, save_tree_file
+from ibt.experts import expert_path
+from ibt.export import save_json
+from ibt.synthesis import imitation_bt
+from ibt.tasks import get_task
+
+CARTPOLE_DQN = str(expert_path("CartPole-v1", "dqn"))
+CARTPOLE_PPO = str(expert_path("CartPole-v1", "ppo"))
+
+
+def _mutate(doc: dict, change) -> dict:
+    doc = json.loads(json.dumps(doc))
+    change(doc)
+    return doc
+
+
+def _first_condition(doc: dict) -> dict:
+    node = doc["root"]
+    while node["type"] != "condition":
+        node = node["children"][0]
+    return node
+
+
+def _set(key: str, value):
+    return lambda doc: _first_condition(doc).__setitem__(key, value)
+
+
+GAP_ROOT = {"type": "selector", "children": [
+    {"type": "sequence", "children": [
+        {"type": "condition", "feature": 2, "op": "<=", "threshold": 0.0},
+        {"type": "action", "action": 0}]},
+    {"type": "sequence", "children": [
+        {"type": "condition", "feature": 2, "op": ">", "threshold": 0.1},
+        {"type": "action", "action": 1}]}]}
+
+#: bad BT documents: name -> how to spoil a valid CartPole BT
+BAD_BTS = {
+    "nan_threshold": _set("threshold", math.nan),
+    "infinite_threshold": _set("threshold", math.inf),
+    "string_threshold": _set("threshold", "0.5"),
+    "fractional_feature": _set("feature", 0.7),
+    "boolean_feature": _set("feature", True),
+    "feature_out_of_range": _set("feature", 9),
+    "misspelt_key": lambda doc: _first_condition(doc).__setitem__(
+        "treshold", _first_condition(doc).pop("threshold")),
+    "negative_action": lambda doc: doc["root"]["children"].__setitem__(
+        -1, {"type": "action", "action": -1}),
+    "action_out_of_range": lambda doc: doc["root"]["children"].__setitem__(
+        -1, {"type": "action", "action": 5}),
+    "no_default_and_a_gap": lambda doc: doc.__setitem__("root", GAP_ROOT),
+    "no_action_at_all": lambda doc: doc.__setitem__("root", {"type": "sequence", "children": [
+        {"type": "condition", "feature": 0, "op": "<=", "threshold": 0.0}]}),
+    "empty_selector": lambda doc: doc.__setitem__("root", {"type": "selector",
+                                                           "children": []}),
+    "inverter_with_two_children": lambda doc: doc.__setitem__("root", {
+        "type": "inverter", "children": [{"type": "action", "action": 0}] * 2}),
+    "unknown_node_type": lambda doc: doc.__setitem__("root", {"type": "parallel",
+                                                              "children": []}),
+    "no_root": lambda doc: doc.pop("root"),
+    "repeated_feature_name": lambda doc: doc["feature_names"].__setitem__(1, "cart_position"),
+    "other_format": lambda doc: doc.__setitem__("format", "ibt-behavior-tree/9"),
+}
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> Path:
+    """Valid and spoiled input files in one folder (module scope: made once)."""
+    folder = tmp_path_factory.mktemp("inputs")
+    task = get_task("CartPole-v1")
+    rng = np.random.default_rng(0)
+    x = task.sample_features(2000, rng)
+    y = (x[:, 2] + 0.5 * x[:, 3] > 0).astype(int)
+    tree = DecisionTreeClassifier(max_leaf_nodes=6, random_state=0).fit(x, y)
+    save_tree_file(folder / "tree.joblib", tree, task, {"algo": "ppo"})
+    doc = imitation_bt(tree, task).bt.to_dict()
+    save_json(imitation_bt(tree, task).bt, folder / "bt.json")
+    for name, change in BAD_BTS.items():
+        (folder / f"{name}.json").write_text(json.dumps(_mutate(doc, change)))
+    (folder / "not_json.json").write_text("{feature_names: [")
+    (folder / "garbage.joblib").write_bytes(b"this is not a joblib file")
+    joblib.dump({"weights": [1, 2]}, folder / "dict.joblib")
+    inconsistent = joblib.load(folder / "tree.joblib")
+    inconsistent["feature_names"] = inconsistent["feature_names"][:3]
+    joblib.dump(inconsistent, folder / "inconsistent.joblib")
+    (folder / "not_a_zip.zip").write_text("not a checkpoint")
+    (folder / "a_folder").mkdir()
+    (folder / "a_file.txt").write_text("a file, not a folder")
+    (folder / "broken_env_module.py").write_text("raise RuntimeError('the module is broken')\n")
+    return folder
+
+
+#: (id, argv, words the one-line message must contain); {d}: the input folder, {o}: an empty
+#: output folder per case
+CASES: list[tuple[str, list[str], str]] = [
+    # --- BT JSON files
+    *[(f"bt-{name}", ["evaluate", f"{{d}}/{name}.json", "--task", "CartPole-v1"], words)
+      for name, words in [
+          ("nan_threshold", "threshold must be finite"),
+          ("infinite_threshold", "threshold must be finite"),
+          ("string_threshold", "threshold must be a number"),
+          ("fractional_feature", "feature must be an integer index, got 0.7"),
+          ("boolean_feature", "feature must be an integer index"),
+          ("feature_out_of_range", "condition on feature 9"),
+          ("misspelt_key", "lacks 'threshold'"),
+          ("negative_action", "non-negative index"),
+          ("action_out_of_range", "action 5, but the tree names 2 actions"),
+          ("no_default_and_a_gap", "no action is reached on some states (e.g. cart_position"),
+          ("no_action_at_all", "no action is reached"),
+          ("empty_selector", "needs at least one child"),
+          ("inverter_with_two_children", "exactly one child"),
+          ("unknown_node_type", "unknown node type 'parallel'"),
+          ("no_root", "lacks the key 'root'"),
+          ("repeated_feature_name", "names 'cart_position' twice"),
+          ("other_format", "ibt-behavior-tree/9"),
+          ("not_json", "not JSON"),
+      ]],
+    ("bt-of-another-task", ["evaluate", "{d}/bt.json", "--task", "MountainCar-v0"],
+     "but MountainCar-v0 has position, velocity"),
+    ("bt-without-task", ["evaluate", "{d}/bt.json"], "does not name its task"),
+    ("bt-missing", ["export", "{d}/nothing.json", "--format", "json", "-o", "{o}/x.json"],
+     "no behavior tree at"),
+    ("bt-export-nan", ["export", "{d}/nan_threshold.json", "--format", "btcpp-xml", "-o",
+                       "{o}/x.xml"], "threshold must be finite"),
+    # --- decision-tree files
+    ("tree-of-another-task", ["evaluate", "{d}/tree.joblib", "--task", "MountainCar-v0"],
+     "was distilled on CartPole-v1, not MountainCar-v0"),
+    ("tree-garbage", ["synthesize", "{d}/garbage.joblib", "-o", "{o}/bt.json"],
+     "not a decision-tree file"),
+    ("tree-dict", ["synthesize", "{d}/dict.joblib", "-o", "{o}/bt.json"],
+     "not a decision-tree file"),
+    ("tree-inconsistent", ["synthesize", "{d}/inconsistent.joblib", "-o", "{o}/bt.json"],
+     "reads 4 features"),
+    ("tree-missing", ["synthesize", "{d}/nothing.joblib", "-o", "{o}/bt.json"],
+     "no decision-tree file at"),
+    ("tree-is-a-folder", ["synthesize", "{d}/a_folder", "-o", "{o}/bt.json"], "is a folder"),
+    ("policy-unknown", ["evaluate", "{d}/policy.txt", "--task", "CartPole-v1"],
+     "expected a BT (.json), a decision-tree file (.joblib) or an expert"),
+    # --- numbers
+    ("selection-episodes-0", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                              "--selection-episodes", "0"], "must be at least 1"),
+    ("iterations-negative", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                             "--iterations", "-3"], "must be at least 1"),
+    ("labels-not-a-number", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                             "--labels", "many"], "expected an integer, got 'many'"),
+    ("one-leaf", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                  "--max-leaf-nodes", "1"], "must be at least 2"),
+    ("seed-negative", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib", "--seed", "-1"],
+     "must be at least 0"),
+    ("evaluate-episodes-0", ["evaluate", "{d}/bt.json", "--task", "CartPole-v1",
+                             "--episodes", "0"], "must be at least 1"),
+    ("random-episodes-0", ["random-baselines", "CartPole-v1", "--episodes", "0", "-o",
+                           "{o}/r.csv"], "must be at least 1"),
+    ("timesteps-0", ["train", "CartPole-v1", "--algo", "ppo", "--timesteps", "0",
+                     "--experts-dir", "{o}/experts"], "must be at least 1"),
+    # --- output paths, checked before any work
+    ("output-is-a-folder", ["synthesize", "{d}/tree.joblib", "-o", "{d}/a_folder"],
+     "is a folder"),
+    ("output-under-a-file", ["synthesize", "{d}/tree.joblib", "-o", "{d}/a_file.txt/bt.json"],
+     "is a file, not a folder"),
+    ("distill-output-suffix", ["distill", "CartPole-v1", "ppo", "-o", "{o}/tree.json"],
+     "expected a .joblib file"),
+    ("export-output-suffix", ["export", "{d}/bt.json", "--format", "png", "-o", "{o}/bt.svg"],
+     "expected a .png file"),
+    ("random-output-suffix", ["random-baselines", "CartPole-v1", "-o", "{o}/random.txt"],
+     "expected a .csv file"),
+    ("experts-dir-is-a-file", ["train", "CartPole-v1", "--algo", "ppo", "--experts-dir",
+                               "{d}/a_file.txt"], "is a file, not a folder"),
+    ("output-unwritable", ["distill", "CartPole-v1", "ppo", "-o", "/sys/ibt-test/t.joblib"],
+     "cannot write in /sys"),
+    # --- tasks and environment modules
+    ("task-misspelt", ["distill", "CartPol-v1", "ppo", "-o", "{o}/t.joblib"],
+     "Did you mean CartPole-v1"),
+    ("env-module-missing", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                            "--env-module", "no_such_package.envs"],
+     "cannot import the environment module 'no_such_package.envs'"),
+    ("env-module-broken", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                           "--env-module", "broken_env_module"], "the module is broken"),
+    ("module-colon-id-missing", ["distill", "no_such_package:Env-v0", "ppo", "-o",
+                                 "{o}/t.joblib"], "no module named 'no_such_package'"),
+    ("continuous-actions", ["distill", "Pendulum-v1", "ppo", "-o", "{o}/t.joblib",
+                            "--checkpoint", CARTPOLE_PPO], "needs a Discrete action space"),
+    ("no-hyperparameters", ["train", "CartPole-v0", "--algo", "ppo", "--experts-dir",
+                            "{o}/experts"], "no hyperparameters for (CartPole-v0, ppo)"),
+    ("refresh-before-missing", ["train", "CartPole-v1", "--algo", "ppo", "--experts-dir",
+                                "{o}/experts", "--refresh-before", "{o}/stamp"],
+     "no such file"),
+    # --- experts
+    ("checkpoint-missing", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                            "--checkpoint", "{d}/nothing.zip"], "no expert checkpoint at"),
+    ("checkpoint-of-another-algorithm", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                                         "--checkpoint", CARTPOLE_DQN],
+     "is a DQN checkpoint, not a PPO one; pass dqn"),
+    ("checkpoint-is-a-folder", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                                "--checkpoint", "{d}/a_folder"], "is a folder, not a"),
+    ("checkpoint-not-a-zip", ["distill", "CartPole-v1", "ppo", "-o", "{o}/t.joblib",
+                              "--checkpoint", "{d}/not_a_zip.zip"], "not a zip archive"),
+    ("checkpoint-of-another-task", ["distill", "MountainCar-v0", "ppo", "-o", "{o}/t.joblib",
+                                    "--checkpoint", CARTPOLE_PPO], "another task"),
+    ("expert-without-task", ["evaluate", "ppo", "--episodes", "1"], "needs --task"),
+    ("checkpoint-for-a-bt", ["evaluate", "{d}/bt.json", "--task", "CartPole-v1",
+                             "--checkpoint", CARTPOLE_PPO], "--checkpoint is for experts"),
+    # --- the parser itself
+    ("missing-output", ["synthesize", "{d}/tree.joblib"], "required: -o/--output"),
+    ("unknown-algorithm", ["train", "CartPole-v1", "--algo", "sac"], "invalid choice: 'sac'"),
+    ("no-command", [], "required: command"),
+]
+
+
+def _listing(*folders: Path) -> set[Path]:
+    return {p for folder in folders for p in folder.rglob("*")}
+
+
+@pytest.mark.parametrize(("argv", "words"), [(argv, words) for _, argv, words in CASES],
+                         ids=[case for case, _, _ in CASES])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(argv, words, files, tmp_path,
+                                                             monkeypatch, capsys):
+    if any(a.startswith("/sys/") for a in argv) and not Path("/sys").is_dir():
+        pytest.skip("no /sys here")
+    monkeypatch.syspath_prepend(str(files))
+    out = tmp_path / "out"
+    out.mkdir()
+    argv = [a.replace("{d}", str(files)).replace("{o}", str(out)) for a in argv]
+    before = _listing(files, out)
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1, captured.err
+    assert words in lines[0]
+    assert captured.out == ""
+    assert _listing(files, out) == before  # nothing written, no temporary file left
+
+
+def test_the_table_is_large():
+    assert len(CASES) >= 30
+    assert len({case for case, _, _ in CASES}) == len(CASES)
+
+
+def test_a_read_only_folder_is_found_before_any_work(files, tmp_path, capsys):
+    import os
+
+    if os.geteuid() == 0:
+        pytest.skip("root writes into read-only folders")
+    folder = tmp_path / "locked"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        assert main(["synthesize", str(files / "tree.joblib"), "-o",
+                     str(folder / "bt.json")]) == 2
+        assert "cannot write in" in capsys.readouterr().err
+        assert list(folder.iterdir()) == []
+    finally:
+        folder.chmod(0o700)
