@@ -27,12 +27,15 @@ check-dot: ## fail with a hint when graphviz's dot is missing
 	@command -v dot >/dev/null || { echo "graphviz's 'dot' is missing: install it with 'sudo apt-get install graphviz' (Debian/Ubuntu) or 'brew install graphviz' (macOS)"; exit 1; }
 
 figures: setup ## re-run every notebook (paper profile, cached results) and rewrite figures/ and paper/
-	@set -e; start=$$(date +%s); for nb in $(NOTEBOOKS); do \
+	@set -e; start=$$(date +%s); rm -rf build/cache-reads; mkdir -p build/cache-reads; \
+	for nb in $(NOTEBOOKS); do \
 		echo "== $$nb"; \
-		IBT_PROFILE=paper $(BIN)/papermill --no-progress-bar --cwd notebooks $$nb $$nb; \
+		IBT_PROFILE=paper IBT_CACHE_READS=$(CURDIR)/build/cache-reads \
+			$(BIN)/papermill --no-progress-bar --cwd notebooks $$nb $$nb; \
 		$(BIN)/python -m ibt.notebooks scrub $$nb; \
 	done; \
-	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start ))
+	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start )); \
+	$(BIN)/python -m ibt.cache stale --reads build/cache-reads  # what this run skipped
 
 reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
 	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started

@@ -28,7 +28,9 @@ from ibt.experts import expert_path, load_expert
 from ibt.pipeline import distill_cached
 from ibt.policies import TreePolicy
 from ibt.schedules import Schedule
+from ibt.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
 from ibt.tasks import get_task
+from ibt.training import expert_statuses
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,26 @@ def grid(tasks: Iterable[str], algos: Iterable[str], methods: Iterable[str] = tu
     extra = tuple(sorted(overrides.items()))
     return [Cell(get_task(t).name, a, m, s, extra) for t in tasks for a in algos
             for m in methods for s in seeds]
+
+
+#: Seeds per cell of the paper grid: 5 (a 95 % bootstrap CI needs them, see ibt.stats), but 3 on
+#: highway, where one run costs 3 to 23 minutes here (``wall_seconds`` in distillation.csv)
+PAPER_SEEDS = 5
+TASK_SEEDS: dict[str, int] = {"highway-fast-v0": 3}
+
+
+def seed_budget(cells: Iterable[Cell]) -> list[Cell]:
+    """The cells within their task's seed count (:data:`TASK_SEEDS`, else all asked for)."""
+    return [c for c in cells if c.seed < TASK_SEEDS.get(c.task, c.seed + 1)]
+
+
+def uncached(cfg: Config, cells: Iterable[Cell]) -> list[Cell]:
+    """The cells whose distillation is not in the cache yet (what ``pending`` may list)."""
+    from ibt.artifacts import is_cached
+    from ibt.pipeline import distill_params
+
+    return [c for c in cells if not is_cached("distill", distill_params(
+        cfg, c.task, c.algo, c.method, c.seed, **dict(c.overrides)), cache_dir=cfg.cache_dir)]
 
 
 def expert_evaluation(cfg: Config, task: str, algo: str) -> dict[str, float]:
@@ -120,7 +142,8 @@ def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
            "nodes": int(tree.tree_.node_count), "leaves": int(tree.get_n_leaves()),
            "best_iteration": run.best_index, "expert_labels": run.expert_labels,
            # the distillation's own recorded time: stable across cache hits, unlike this call's
-           "wall_seconds": round(run.wall_seconds, 2)}
+           "wall_seconds": round(run.wall_seconds, 2),
+           "expert_status": expert_statuses().get((cell.task, cell.algo), "ok")}
     row.update({k: v for k, v in evaluation.items() if k.endswith("_rate")})
     return row
 
@@ -183,30 +206,6 @@ def write_results(cfg: Config, frame: pd.DataFrame, name: str, **facts: Any) -> 
     atomic_write_text(target.with_suffix(".manifest.json"),
                       json.dumps(manifest, indent=1, sort_keys=True, default=str) + "\n")
     return target
-
-
-def bootstrap_ci(values: Sequence[float], n_boot: int = 2000, level: float = 0.95,
-                 seed: int = 0) -> tuple[float, float]:
-    """Percentile bootstrap confidence interval of the mean."""
-    values = np.asarray(values, dtype=float)
-    if len(values) < 2:
-        return (float(values.mean()), float(values.mean())) if len(values) else (np.nan, np.nan)
-    rng = np.random.default_rng(seed)
-    means = rng.choice(values, size=(n_boot, len(values)), replace=True).mean(axis=1)
-    alpha = (1 - level) / 2
-    return float(np.quantile(means, alpha)), float(np.quantile(means, 1 - alpha))
-
-
-def summarise(results: pd.DataFrame, value: str = "retention_norm",
-              by: Sequence[str] = ("task", "expert", "method")) -> pd.DataFrame:
-    """Mean and 95 % bootstrap CI of ``value`` per group."""
-    rows = []
-    for key, group in results.groupby(list(by), sort=False):
-        low, high = bootstrap_ci(group[value].to_numpy())
-        rows.append({**dict(zip(by, key, strict=True)), "n": len(group),
-                     value: group[value].mean(), "ci_low": low, "ci_high": high,
-                     "nodes": group["nodes"].mean() if "nodes" in group else np.nan})
-    return pd.DataFrame(rows)
 
 
 def seed_best(results: pd.DataFrame, task: str, algo: str, method: str) -> int:
@@ -321,6 +320,7 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
     sources = {"imitation-bt": "imitation-bt", "bt-espresso": baseline_source,
                "re-bt-espresso": baseline_source}
     pairs = list(results[["task", "expert"]].drop_duplicates().itertuples(index=False))
+    statuses = expert_statuses()
     rows = []
     for task, algo in tqdm(pairs, desc="synthesis", disable=not cfg.progress):
         spec = get_task(task)
@@ -351,23 +351,7 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
                             "expert_return": expert_return, "random_return": random_return,
                             "retention_raw": retention_raw(perf["mean_return"], expert_return),
                             "retention_norm": retention_norm(perf["mean_return"], expert_return,
-                                                             random_return)})
+                                                             random_return),
+                            "expert_status": statuses.get((task, algo), "ok")})
                 rows.append(row)
     return pd.DataFrame(rows)
-
-
-def retention_table(results: pd.DataFrame, synthesis: pd.DataFrame | None = None
-                    ) -> pd.DataFrame:
-    """Fig. 4's rows: the tree methods of the grid plus the two BT baselines (per seed)."""
-    if synthesis is None or synthesis.empty:
-        return results
-    baselines = synthesis[synthesis.method.isin(["bt-espresso", "re-bt-espresso"])]
-    return pd.concat([results, baselines[[c for c in results.columns if c in baselines]]],
-                     ignore_index=True)
-
-
-def node_table(results: pd.DataFrame, synthesis: pd.DataFrame) -> pd.DataFrame:
-    """Fig. 5's rows: decision-tree nodes for BC/DAgger/VIPER, BT nodes for the BT methods."""
-    trees = results[results.method.isin(["bc", "dagger", "viper"])]
-    cols = ["task", "expert", "method", "seed", "nodes"]
-    return pd.concat([trees[cols], synthesis[cols]], ignore_index=True)

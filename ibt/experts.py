@@ -49,7 +49,9 @@ class Hyperparams:
 
     timesteps: int
     n_envs: int = 1
-    normalize: bool = False
+    # VecNormalize: True normalises observations and rewards (the zoo's ``normalize: true``);
+    # "reward" only rewards, for observations VecNormalize cannot scale (MultiDiscrete)
+    normalize: bool | str = False
     kwargs: tuple[tuple[str, Any], ...] = ()
     source: str = "ours"  # "zoo:<file>" or "ours"
     net_arch: tuple[int, ...] = NET_ARCH
@@ -64,7 +66,7 @@ class Hyperparams:
         return out
 
 
-def _hp(timesteps: float, n_envs: int = 1, normalize: bool = False, source: str = "ours",
+def _hp(timesteps: float, n_envs: int = 1, normalize: bool | str = False, source: str = "ours",
         net_arch: tuple[int, ...] = NET_ARCH, train_env: dict[str, Any] | None = None,
         **kwargs: Any) -> Hyperparams:
     return Hyperparams(int(timesteps), n_envs, normalize, tuple(sorted(kwargs.items())), source,
@@ -74,20 +76,24 @@ def _hp(timesteps: float, n_envs: int = 1, normalize: bool = False, source: str 
 _ZOO_DQN = "zoo:hyperparams/dqn.yml"
 _ZOO_PPO = "zoo:hyperparams/ppo.yml"
 _ZOO_A2C = "zoo:hyperparams/a2c.yml"
-_ZOO_DQN_CLASSIC = {"learning_rate": 6.3e-4, "batch_size": 128, "buffer_size": 50_000,
-                    "learning_starts": 0, "gamma": 0.99, "target_update_interval": 250,
-                    "train_freq": 4, "gradient_steps": -1, "exploration_fraction": 0.12,
-                    "exploration_final_eps": 0.1}
-_OURS_TABULAR_DQN = {"learning_rate": 1e-3, "batch_size": 64, "buffer_size": 50_000,
-                     "learning_starts": 1000, "gamma": 0.99, "target_update_interval": 500,
-                     "train_freq": 4, "exploration_fraction": 0.3, "exploration_final_eps": 0.02}
-_OURS_TABULAR_PPO = {"n_steps": 128, "batch_size": 256, "gamma": 0.99, "ent_coef": 0.01}
-_OURS_TABULAR_A2C = {"n_steps": 8, "gamma": 0.99, "ent_coef": 0.01}
-_HIGHWAY_DQN = {"learning_rate": 5e-4, "buffer_size": 15_000, "learning_starts": 200,
-                "batch_size": 32, "gamma": 0.8, "train_freq": 1, "gradient_steps": 1,
-                "target_update_interval": 50, "exploration_fraction": 0.7}
-_HIGHWAY_PPO = {"n_steps": 128, "batch_size": 64, "n_epochs": 10, "learning_rate": 5e-4,
-                "gamma": 0.8}
+# dict[str, Any]: they fill _hp's keyword arguments (mypy would match them to its parameters)
+_ZOO_DQN_CLASSIC: dict[str, Any] = {
+    "learning_rate": 6.3e-4, "batch_size": 128, "buffer_size": 50_000, "learning_starts": 0,
+    "gamma": 0.99, "target_update_interval": 250, "train_freq": 4, "gradient_steps": -1,
+    "exploration_fraction": 0.12, "exploration_final_eps": 0.1}
+_OURS_TABULAR_DQN: dict[str, Any] = {
+    "learning_rate": 1e-3, "batch_size": 64, "buffer_size": 50_000, "learning_starts": 1000,
+    "gamma": 0.99, "target_update_interval": 500, "train_freq": 4, "exploration_fraction": 0.3,
+    "exploration_final_eps": 0.02}
+_OURS_TABULAR_PPO: dict[str, Any] = {"n_steps": 128, "batch_size": 256, "gamma": 0.99,
+                                     "ent_coef": 0.01}
+_OURS_TABULAR_A2C: dict[str, Any] = {"n_steps": 8, "gamma": 0.99, "ent_coef": 0.01}
+_HIGHWAY_DQN: dict[str, Any] = {
+    "learning_rate": 5e-4, "buffer_size": 15_000, "learning_starts": 200, "batch_size": 32,
+    "gamma": 0.8, "train_freq": 1, "gradient_steps": 1, "target_update_interval": 50,
+    "exploration_fraction": 0.7}
+_HIGHWAY_PPO: dict[str, Any] = {"n_steps": 128, "batch_size": 64, "n_epochs": 10,
+                                "learning_rate": 5e-4, "gamma": 0.8}
 
 #: One row per (task, algo). ``source`` names where the values come from; every row keeps the
 #: paper's 2x64 MLP unless it missed the quality bar (then ``net_arch`` says what was used), and
@@ -360,7 +366,11 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     start = time.perf_counter()
     train_env = dict(hp.train_env)
     venv = make_vec_env(lambda: task.make_env(**train_env), n_envs=hp.n_envs, seed=seed)
-    if hp.normalize:
+    norm_obs = hp.normalize is True  # the expert then carries the observation statistics
+    if hp.normalize == "reward":
+        venv = VecNormalize(venv, norm_obs=False, norm_reward=True,
+                            gamma=dict(hp.kwargs).get("gamma", 0.99))
+    elif hp.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True)
     kwargs = hp.algo_kwargs()
     policy_kwargs = {"net_arch": list(hp.net_arch)}
@@ -371,10 +381,12 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     callback = None
     # keep the best checkpoint (training is not monotone); tiny smoke/test budgets skip it, as
     # its evaluations would cost far more than the training itself
-    if not hp.normalize and steps >= MIN_STEPS_FOR_CHECKPOINTS:
+    if not norm_obs and steps >= MIN_STEPS_FOR_CHECKPOINTS:
         from stable_baselines3.common.callbacks import EvalCallback
 
         eval_env = make_vec_env(lambda: task.make_env(), n_envs=1, seed=seed + 10_000)
+        if hp.normalize == "reward":  # the callback syncs wrappers: the same kind, raw rewards
+            eval_env = VecNormalize(eval_env, norm_obs=False, norm_reward=False, training=False)
         scratch = tempfile.mkdtemp(prefix="ibt-train-")
         callback = EvalCallback(eval_env, n_eval_episodes=EVAL_EPISODES,
                                 eval_freq=max(steps // EVAL_POINTS // hp.n_envs, 1),
@@ -383,15 +395,17 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
         model.learn(total_timesteps=steps, progress_bar=progress, callback=callback)
         wall = time.perf_counter() - start
         if callback is not None:
-            best = Path(callback.best_model_save_path) / "best_model.zip"
+            best = Path(str(callback.best_model_save_path)) / "best_model.zip"
             if best.exists() and callback.best_mean_reward > _final_score(callback):
                 model = _sb3_class(algo).load(best, device="cpu")
     finally:  # an interrupted training leaves no scratch folder behind
         if callback is not None:
-            shutil.rmtree(callback.best_model_save_path, ignore_errors=True)
+            shutil.rmtree(str(callback.best_model_save_path), ignore_errors=True)
     atomic_save_model(model, path)
     norm_file = _norm_path(path)
-    if hp.normalize:
+    if norm_obs:
+        # the observation statistics (one array: a flat Box)
+        assert isinstance(venv, VecNormalize) and not isinstance(venv.obs_rms, dict)
         stats = {"mean": venv.obs_rms.mean.tolist(), "var": venv.obs_rms.var.tolist(),
                  "epsilon": float(venv.epsilon), "clip": float(venv.clip_obs)}
         atomic_write_text(norm_file, json.dumps(stats))

@@ -33,6 +33,15 @@ def distill_config(cfg: Config, task: str, method: str = "imitation-bt", **overr
     return DistillConfig.for_task(task, method=method, **settings)
 
 
+def distill_params(cfg: Config, task: str, algo: str, method: str = "imitation-bt",
+                   seed: int = 0, **overrides: Any) -> dict[str, Any]:
+    """The cache parameters of one distillation run (see :func:`distill_cached`)."""
+    task_obj = get_task(task)
+    dcfg = distill_config(cfg, task_obj.name, method, **overrides)
+    return {"task": task_obj.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
+            "expert_sha256": file_digest(expert_path(task_obj, algo))}
+
+
 def distill_cached(cfg: Config, task: str, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> Distillation:
     """A distillation run, from the cache when the same expert, settings and seed ran before.
@@ -41,8 +50,7 @@ def distill_cached(cfg: Config, task: str, algo: str, method: str = "imitation-b
     """
     task_obj = get_task(task)
     dcfg = distill_config(cfg, task_obj.name, method, **overrides)
-    params = {"task": task_obj.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
-              "expert_sha256": file_digest(expert_path(task_obj, algo))}
+    params = distill_params(cfg, task_obj.name, algo, method, seed, **overrides)
 
     def compute() -> Distillation:
         return distill(task_obj, load_expert(task_obj, algo), dcfg, seed, progress=cfg.progress)

@@ -26,7 +26,13 @@ from ibt.tasks import TASKS, get_task
 MANIFEST_COLUMNS = ["task", "algo", "timesteps", "seed", "mean_return", "std_return",
                     "n_episodes", "success_rate", "collision_rate", "battery_failure_rate",
                     "wall_seconds", "n_envs", "normalize", "net_arch", "hyperparams_source",
-                    "bar", "meets_bar", "note", "sha256"]
+                    "bar", "meets_bar", "note", "status", "status_evidence", "sha256"]
+
+#: An expert's status (``status`` column of the manifest): ``ok`` experts count in every claim;
+#: ``excluded`` ones missed their quality bar; ``constant-action`` ones take one action on every
+#: step of the final episodes (a one-leaf tree copies them exactly, which proves nothing). The
+#: last two stay in the tables, marked, and are left out of every claim and every count.
+STATUSES = ("ok", "excluded", "constant-action")
 
 #: Quality bars of the experts (mean return over 100 episodes unless the text says otherwise).
 BARS: dict[str, str] = {
@@ -135,9 +141,74 @@ def train_missing(tasks: Iterable[str] | None = None, algos: Iterable[str] = ALG
         row["bar"] = BARS.get(task, "")
         row["meets_bar"] = meets_bar(task, algo, row, scripted)
         row["note"] = "" if row["meets_bar"] else "below the bar"
+        row.update(expert_status(task, algo, row["meets_bar"], path))
         row["sha256"] = file_digest(path)
         record(row, manifest)
     return _read_manifest(manifest)
+
+
+def action_counts(task: str, algo: str, path: Path | None = None, n_episodes: int = 100
+                  ) -> tuple[dict[int, int], int]:
+    """How often the expert takes each action over the final episodes, and the step count."""
+    import numpy as np
+
+    expert = load_expert(task, algo, path)
+    counts = np.zeros(expert.n_actions, dtype=np.int64)
+
+    def count(_obs: Any, actions: Any) -> None:
+        np.add.at(counts, np.asarray(actions, dtype=np.int64), 1)
+
+    rollout(task, expert.act, final_seeds(n_episodes), on_step=count)
+    return {a: int(n) for a, n in enumerate(counts) if n}, int(counts.sum())
+
+
+def expert_status(task: str, algo: str, bar_met: bool, path: Path | None = None,
+                  n_episodes: int = 100) -> dict[str, str]:
+    """``status`` and ``status_evidence`` of one expert (see :data:`STATUSES`).
+
+    Below its bar it is ``excluded``; else one action on every step of the ``n_episodes``
+    final episodes makes it ``constant-action``; else ``ok``. The evidence names the action
+    counts it was measured on.
+    """
+    spec = get_task(task)
+    counts, steps = action_counts(spec.name, algo, path, n_episodes)
+    shares = ", ".join(f"{spec.action_names[a]} {n}" for a, n in
+                       sorted(counts.items(), key=lambda kv: -kv[1]))
+    measured = f"actions over the {n_episodes} final episodes ({steps} steps): {shares}"
+    if not bar_met:
+        return {"status": "excluded", "status_evidence": f"below its bar; {measured}"}
+    if len(counts) == 1:
+        action = spec.action_names[next(iter(counts))]
+        return {"status": "constant-action",
+                "status_evidence": f"always '{action}' on all {steps} steps of the "
+                                   f"{n_episodes} final episodes"}
+    return {"status": "ok", "status_evidence": measured}
+
+
+def record_statuses(root: Path | None = None, tasks: Iterable[str] | None = None,
+                    progress: bool = True) -> pd.DataFrame:
+    """Measure and write the status of every expert of the manifest (or of ``tasks``)."""
+    root = root or DATA_DIR / "experts"
+    manifest = root / "manifest.csv"
+    frame = _read_manifest(manifest)
+    wanted = None if tasks is None else {get_task(t).name for t in tasks}
+    rows = [r for r in frame.to_dict("records") if wanted is None or r["task"] in wanted]
+    for row in tqdm(rows, desc="expert status", disable=not progress):
+        path = expert_path(row["task"], row["algo"], root)
+        row.update(expert_status(row["task"], row["algo"], bool(row["meets_bar"]), path))
+        record(row, manifest)
+    return _read_manifest(manifest)
+
+
+def expert_statuses(root: Path | None = None) -> dict[tuple[str, str], str]:
+    """``(task, algo) -> status`` from the manifest; where none is recorded, ``excluded`` if
+    the expert missed its bar, else ``ok``."""
+    frame = _read_manifest((root or DATA_DIR / "experts") / "manifest.csv")
+    status = frame["status"] if "status" in frame else pd.Series(None, index=frame.index)
+    bar = frame["meets_bar"] if "meets_bar" in frame else pd.Series(True, index=frame.index)
+    return {(t, a): (s if isinstance(s, str) and s else
+                     "excluded" if str(m) == "False" else "ok")
+            for t, a, s, m in zip(frame["task"], frame["algo"], status, bar, strict=True)}
 
 
 def random_baselines(tasks: Iterable[str] | None = None, n_episodes: int = 100,
@@ -180,7 +251,7 @@ def expert_table(root: Path | None = None) -> pd.DataFrame:
                                   on="task", how="left")
     keep = ["task", "algo", "timesteps", "net_arch", "mean_return", "std_return",
             "success_rate", "collision_rate", "battery_failure_rate", "random_return", "bar",
-            "meets_bar", "note", "wall_seconds"]
+            "meets_bar", "status", "status_evidence", "note", "wall_seconds"]
     table = manifest.reindex(columns=[c for c in keep if c in manifest.columns])
     return table.dropna(axis=1, how="all").reset_index(drop=True)
 

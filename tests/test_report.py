@@ -1,23 +1,32 @@
-"""The reproduction report: verdicts follow the numbers, missing results say so."""
+"""Statistics, claims and the report: verdicts follow the numbers, partial tables say "not
+measured", experts that do not count stay out of every claim, intervals say what they are."""
 
 from __future__ import annotations
 
 import json
 
+import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from ibt import report
+from ibt import claims, report, stats
+from ibt.claims import NOT_MEASURED, NOT_REPRODUCED, PARTLY, REPRODUCED
+
+SIMPLE = claims.SIMPLE_TASKS
+STOCHASTIC = claims.STOCHASTIC_TASKS
 
 
-def _grid(retention: dict[tuple[str, str, str], float]) -> pd.DataFrame:
+def _grid(retention: dict[tuple[str, str, str], float], seeds: int = 3) -> pd.DataFrame:
+    """Rows of a distillation table: ``seeds`` runs per cell around the given mean."""
     rows = []
     for (task, expert, method), value in retention.items():
-        for seed in range(3):
+        offsets = np.linspace(-1, 1, seeds) if seeds > 1 else [0.0]
+        for seed, off in enumerate(offsets):
             rows.append({"task": task, "expert": expert, "method": method, "seed": seed,
                          "mean_return": value, "std_return": 0.0, "expert_return": 100.0,
-                         "retention_raw": value, "retention_norm": value + seed - 1,
-                         "nodes": 15})
+                         "retention_raw": value, "retention_norm": value + off, "nodes": 15})
     return pd.DataFrame(rows)
 
 
@@ -27,55 +36,345 @@ def _write(tmp_path, name, frame):
     frame.to_csv(out / f"{name}.csv", index=False)
 
 
+def _experts(tmp_path, statuses: dict[tuple[str, str], str]):
+    rows = [{"task": t, "algo": a, "timesteps": 1000, "net_arch": "64x64", "mean_return": 1.0,
+             "meets_bar": s != "excluded", "status": s, "status_evidence": f"evidence {t} {a}",
+             "hyperparams_source": "ours", "wall_seconds": 1.0}
+            for (t, a), s in statuses.items()]
+    (tmp_path / "experts").mkdir(exist_ok=True)
+    pd.DataFrame(rows).to_csv(tmp_path / "experts" / "manifest.csv", index=False)
+
+
+def _simple(value: float, worst: float | None = None) -> dict:
+    cells = {(t, "dqn", "imitation-bt"): value for t in SIMPLE}
+    if worst is not None:
+        cells[(SIMPLE[0], "dqn", "imitation-bt")] = worst
+    return cells
+
+
+def _stochastic(ours: float, rival: float = 50.0, expert: str = "ppo") -> dict:
+    return {(t, expert, m): (ours if m == "imitation-bt" else rival)
+            for t in STOCHASTIC for m in claims.TREE_METHODS}
+
+
+# --- stats ------------------------------------------------------------------------------------
+
+def test_few_seeds_give_a_range_never_a_ci():
+    iv = stats.interval([1.0, 5.0, 3.0])
+    assert (iv.low, iv.high, iv.kind) == (1.0, 5.0, "range")
+    assert iv.label == "range over 3 seeds" and "CI" not in iv.label
+    iv = stats.interval([1.0, 2.0, 3.0, 4.0, 10.0])
+    assert iv.kind == "ci" and iv.label == "95 % percentile bootstrap CI over 5 seeds"
+    assert 1.0 <= iv.low <= iv.mean <= iv.high <= 10.0
+
+
+def test_summarise_names_its_interval_per_row():
+    frame = _grid({("A", "dqn", "bc"): 50.0}, seeds=3)
+    frame = pd.concat([frame, _grid({("B", "dqn", "bc"): 60.0}, seeds=5)])
+    summary = stats.summarise(frame).set_index("task")
+    assert list(summary["interval"]) == ["range over 3 seeds",
+                                         "95 % percentile bootstrap CI over 5 seeds"]
+    assert "ci_low" not in summary and {"interval_low", "interval_high"} <= set(summary)
+    assert summary.loc["A", "interval_low"] == 49.0
+    caption = stats.error_bar_caption(summary.reset_index())
+    assert "range over 3 seeds" in caption and "not a confidence interval" in caption
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.lists(st.floats(-100, 100), min_size=1, max_size=6), min_size=1,
+                max_size=4))
+def test_stratified_iqm_lies_within_the_data(cells):
+    point, low, high = stats.stratified_iqm(cells, reps=200)
+    flat = np.concatenate([np.asarray(c) for c in cells])
+    assert flat.min() - 1e-9 <= low <= high <= flat.max() + 1e-9
+    assert flat.min() - 1e-9 <= point <= flat.max() + 1e-9
+
+
+def test_stratified_bootstrap_keeps_every_cell():
+    # two cells far apart: a resample that dropped one cell would leave the other's value
+    point, low, high = stats.stratified_iqm([[0.0] * 4, [100.0] * 4], reps=300)
+    assert point == 50.0 and low == high == 50.0
+
+
+# --- claims: not measured ---------------------------------------------------------------------
+
 def test_missing_results_are_not_measured(tmp_path):
-    res = report.Results(tmp_path)
-    table = report.claims(res)
-    assert len(table) == len(report.CLAIMS)
-    assert (table.verdict == "not measured").all()
-    assert "Reproduction report" in report.report_markdown(res)
+    res = stats.Results(tmp_path)
+    table = claims.claims(res)
+    assert len(table) == len(claims.CLAIMS)
+    assert (table.verdict == NOT_MEASURED).all()
+    text = report.report_markdown(res)
+    assert "Reproduction report" in text and "not measured" in text
 
 
-@pytest.mark.parametrize(("value", "verdict"), [(99.5, "reproduced"), (95.0, "partly"),
-                                                (60.0, "not reproduced")])
-def test_simple_task_verdict_follows_the_numbers(tmp_path, value, verdict):
-    _write(tmp_path, "distillation", _grid({("CartPole-v1", "dqn", "imitation-bt"): value,
-                                            ("CartPole-v1", "dqn", "bc"): 50.0}))
-    claim = report.claim_simple_tasks(report.Results(tmp_path))
+@pytest.mark.parametrize("claim", claims.CLAIMS, ids=lambda c: c.__name__)
+def test_every_claim_says_not_measured_on_partial_tables(tmp_path, claim):
+    # a distillation table without most tasks and methods, tables with missing columns
+    _write(tmp_path, "distillation", _grid({("CartPole-v1", "dqn", "imitation-bt"): 99.0,
+                                            ("LunarLander-v3", "dqn", "imitation-bt"): 50.0}))
+    _write(tmp_path, "synthesis", pd.DataFrame({"task": ["CartPole-v1"], "expert": ["dqn"],
+                                                "method": ["imitation-bt"], "nodes": [5]}))
+    _write(tmp_path, "beta_analysis", pd.DataFrame({"schedule": ["linear"],
+                                                    "mean_return": [1.0]}))
+    _write(tmp_path, "qualitative", pd.DataFrame({"key": ["frozenlake_expert"],
+                                                  "value": ["dqn"]}))
+    _write(tmp_path, "package_delivery", pd.DataFrame({"experiment": ["dqn"],
+                                                       "policy": ["expert"]}))
+    result = claim(stats.Results(tmp_path))
+    assert result.verdict == NOT_MEASURED, result
+    assert result.measured.startswith("not measured")
+
+
+def test_a_malformed_table_is_not_measured_not_a_crash(tmp_path):
+    _write(tmp_path, "package_delivery", pd.DataFrame({
+        "experiment": ["dqn"] * 3, "policy": ["expert", "imitation-bt", "re-bt-espresso"],
+        "nodes": [1, "many", 9], "delivered": [1, 1, 1], "mean_return": [1, 1, 1],
+        "retention_norm_%": [100, 100, 100]}))
+    assert claims.claim_package_delivery(stats.Results(tmp_path)).verdict == NOT_MEASURED
+
+
+# --- claims: every verdict branch -------------------------------------------------------------
+
+@pytest.mark.parametrize(("value", "worst", "verdict"), [
+    (99.5, None, REPRODUCED), (99.5, 95.0, PARTLY), (99.5, 60.0, NOT_REPRODUCED)])
+def test_simple_task_verdicts(tmp_path, value, worst, verdict):
+    _write(tmp_path, "distillation", _grid(_simple(value, worst)))
+    claim = claims.claim_simple_tasks(stats.Results(tmp_path))
     assert claim.verdict == verdict
-    assert "CartPole-v1" in claim.measured
+    assert "range over 3 seeds" in claim.measured and "CI" not in claim.measured
 
 
-def test_beta_claim_compares_linear_with_the_best_exponential(tmp_path):
+def test_simple_tasks_leave_out_experts_that_do_not_count(tmp_path):
+    cells = _simple(99.5)
+    cells[("PackageDelivery-v0", "a2c", "imitation-bt")] = 100.0
+    cells[("CartPole-v1", "a2c", "imitation-bt")] = 20.0  # would fail the claim if counted
+    _write(tmp_path, "distillation", _grid(cells))
+    _experts(tmp_path, {("PackageDelivery-v0", "a2c"): "constant-action",
+                        ("CartPole-v1", "a2c"): "excluded"})
+    claim = claims.claim_simple_tasks(stats.Results(tmp_path))
+    assert claim.verdict == REPRODUCED
+    assert "6 of 6 cells" in claim.measured
+    assert "left out: CartPole-v1/a2c (excluded), PackageDelivery-v0/a2c (constant-action)" \
+        in claim.measured
+
+
+def test_simple_tasks_with_only_excluded_experts_are_not_measured(tmp_path):
+    _write(tmp_path, "distillation", _grid(_simple(99.5)))
+    _experts(tmp_path, {(t, "dqn"): "excluded" for t in SIMPLE})
+    assert claims.claim_simple_tasks(stats.Results(tmp_path)).verdict == NOT_MEASURED
+
+
+@pytest.mark.parametrize(("ours", "rival", "verdict"), [
+    (90.0, 50.0, REPRODUCED), (50.0, 90.0, NOT_REPRODUCED), (90.0, 90.0, REPRODUCED)])
+def test_stochastic_verdicts(tmp_path, ours, rival, verdict):
+    _write(tmp_path, "distillation", _grid(_stochastic(ours, rival)))
+    claim = claims.claim_stochastic(stats.Results(tmp_path))
+    assert claim.verdict == verdict  # a tie with the best counts as best
+    assert "IQM over the 2 counted cells" in claim.measured
+
+
+def test_stochastic_partly_counts_only_ok_experts(tmp_path):
+    cells = {**_stochastic(90.0, 50.0, "ppo"), **_stochastic(40.0, 50.0, "dqn")}
+    cells.update({("highway-fast-v0", "a2c", m): 100.0 for m in claims.TREE_METHODS})
+    _write(tmp_path, "distillation", _grid(cells))
+    _experts(tmp_path, {("highway-fast-v0", "a2c"): "constant-action"})
+    claim = claims.claim_stochastic(stats.Results(tmp_path))
+    assert claim.verdict == PARTLY
+    assert "best in 2 of 4 counted cells" in claim.reason  # highway a2c's tie is not a win
+    assert "highway-fast-v0/a2c (constant-action)" in claim.measured
+
+
+def test_stochastic_needs_every_tree_method(tmp_path):
+    cells = _stochastic(90.0)
+    del cells[("LunarLander-v3", "ppo", "viper")]
+    _write(tmp_path, "distillation", _grid(cells))
+    claim = claims.claim_stochastic(stats.Results(tmp_path))
+    assert claim.verdict == NOT_MEASURED and "viper" in claim.reason
+
+
+@pytest.mark.parametrize(("rival_shift", "verdict"), [
+    (-50, REPRODUCED), (0.5, PARTLY), (100, NOT_REPRODUCED)])
+def test_beta_verdicts(tmp_path, rival_shift, verdict):
     rows = [{"task": "LunarLander-v3", "expert": "ppo", "schedule": s, "seed": k,
-             "mean_return": base + k} for s, base in [("linear", 200), ("exponential p=0.5", 150)]
-            for k in range(5)]
+             "mean_return": 200 + k + (rival_shift if s != "linear" else 0)}
+            for s in ("linear", "exponential p=0.5") for k in range(5)]
     _write(tmp_path, "beta_analysis", pd.DataFrame(rows))
-    assert report.claim_beta(report.Results(tmp_path)).verdict == "reproduced"
-    rows = [dict(r, mean_return=r["mean_return"] + (100 if r["schedule"] != "linear" else 0))
-            for r in rows]
-    _write(tmp_path, "beta_analysis", pd.DataFrame(rows))
-    assert report.claim_beta(report.Results(tmp_path)).verdict == "not reproduced"
+    claim = claims.claim_beta(stats.Results(tmp_path))
+    assert claim.verdict == verdict
+    assert "95 % percentile bootstrap CI over 5 seeds" in claim.measured
 
 
-def test_node_claim_needs_ten_times_on_lunarlander(tmp_path):
-    def syn(ratio):
-        return pd.DataFrame([
-            {"task": t, "expert": "ppo", "method": m, "seed": 0, "nodes": n}
-            for t in ("LunarLander-v3", "CartPole-v1")
-            for m, n in [("imitation-bt", 10), ("re-bt-espresso", 10 * ratio),
-                         ("bt-espresso", 12 * ratio)]])
-    _write(tmp_path, "synthesis", syn(12))
-    assert report.claim_nodes(report.Results(tmp_path)).verdict == "reproduced"
-    _write(tmp_path, "synthesis", syn(3))
-    assert report.claim_nodes(report.Results(tmp_path)).verdict == "partly"
+def _synthesis(ratio: float, *, lunar: bool = True, ratio_elsewhere: float | None = None):
+    tasks = (["LunarLander-v3"] if lunar else []) + ["CartPole-v1", "Acrobot-v1"]
+    rows = []
+    for t in tasks:
+        r = ratio if t == "LunarLander-v3" or ratio_elsewhere is None else ratio_elsewhere
+        rows += [{"task": t, "expert": "ppo", "method": m, "seed": 0, "nodes": n}
+                 for m, n in [("imitation-bt", 10), ("re-bt-espresso", 10 * r),
+                              ("bt-espresso", 12 * r)]]
+    return pd.DataFrame(rows)
 
 
-def test_readme_block_replaces_only_the_marked_section(tmp_path):
+@pytest.mark.parametrize(("kwargs", "verdict"), [
+    ({"ratio": 12}, REPRODUCED), ({"ratio": 3}, PARTLY),
+    ({"ratio": 12, "ratio_elsewhere": 0.5}, NOT_REPRODUCED), ({"ratio": 12, "lunar": False},
+                                                              NOT_MEASURED)])
+def test_node_verdicts(tmp_path, kwargs, verdict):
+    _write(tmp_path, "synthesis", _synthesis(**kwargs))
+    assert claims.claim_nodes(stats.Results(tmp_path)).verdict == verdict
+
+
+def test_node_claim_leaves_out_constant_action_experts(tmp_path):
+    syn = pd.concat([_synthesis(12), _synthesis(1).assign(expert="a2c")])
+    _write(tmp_path, "synthesis", syn)
+    assert claims.claim_nodes(stats.Results(tmp_path)).verdict == PARTLY
+    _experts(tmp_path, {(t, "a2c"): "constant-action" for t in syn.task.unique()})
+    assert claims.claim_nodes(stats.Results(tmp_path)).verdict == REPRODUCED
+
+
+def _lake(default="down", down=6, right=6, path="0-4-8-9-10-14-15"):
+    return {"frozenlake_expert": "dqn", "frozenlake_bt_nodes": 9,
+            "frozenlake_default_action": default, "frozenlake_path": path,
+            "frozenlake_follows_down_first": down, "frozenlake_follows_right_first": right}
+
+
+def _car(smallest: float | None):
+    facts = {"mountaincar_expert": "dqn", "mountaincar_bt_nodes": 19,
+             "mountaincar_bt_retention_norm": 99.9, "paper_rule_retention_norm": 0.0,
+             "paper_rule_return": -200.0, "mirrored_rule_retention_norm": 69.6,
+             "paper_rule_agreement": 48.2}
+    front = pd.DataFrame({"task": ["MountainCar-v0"] * 2, "nodes": [5, smallest or 40],
+                          "retention_norm": [50.0, 99.0 if smallest else 90.0],
+                          "conditions": [2, 6]})
+    return facts, front
+
+
+def _qualitative(tmp_path, facts):
+    _write(tmp_path, "qualitative", pd.DataFrame({"key": list(facts),
+                                                  "value": [str(v) for v in facts.values()]}))
+
+
+@pytest.mark.parametrize(("facts", "verdict"), [
+    (_lake(), REPRODUCED), (_lake(default="right", right=4), PARTLY),
+    (_lake(path="0-4-5"), NOT_REPRODUCED)])
+def test_frozenlake_verdicts(tmp_path, facts, verdict):
+    _qualitative(tmp_path, facts)
+    claim = claims.claim_frozenlake(stats.Results(tmp_path))
+    assert claim.verdict == verdict
+
+
+def test_frozenlake_with_an_excluded_expert_is_not_measured(tmp_path):
+    _qualitative(tmp_path, _lake())
+    _experts(tmp_path, {("FrozenLake-v1", "dqn"): "excluded"})
+    assert claims.claim_frozenlake(stats.Results(tmp_path)).verdict == NOT_MEASURED
+
+
+@pytest.mark.parametrize(("smallest", "verdict"), [
+    (7, REPRODUCED), (11, PARTLY), (None, NOT_REPRODUCED)])
+def test_mountaincar_verdicts(tmp_path, smallest, verdict):
+    facts, front = _car(smallest)
+    _qualitative(tmp_path, facts)
+    _write(tmp_path, "bt_size_front", front)
+    claim = claims.claim_mountaincar(stats.Results(tmp_path))
+    assert claim.verdict == verdict
+    assert "BTs with <= 2 conditions reach 50.0" in claim.measured
+
+
+def test_mountaincar_without_the_size_front_is_not_measured(tmp_path):
+    _qualitative(tmp_path, _car(11)[0])
+    assert claims.claim_mountaincar(stats.Results(tmp_path)).verdict == NOT_MEASURED
+
+
+def _delivery(ours_nodes=100, base_nodes=200, ours_ret=99.0, base_ret=100.0, experts=("dqn",)):
+    rows = []
+    for e in experts:
+        rows += [{"experiment": e, "policy": p, "nodes": n, "delivered": 30.0,
+                  "mean_return": r * 2, "retention_norm_%": r}
+                 for p, n, r in [("expert", np.nan, 100.0), ("imitation-bt", ours_nodes, ours_ret),
+                                 ("re-bt-espresso", base_nodes, base_ret)]]
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize(("kwargs", "verdict"), [
+    ({}, REPRODUCED), ({"ours_ret": 80.0}, PARTLY), ({"ours_nodes": 300}, NOT_REPRODUCED)])
+def test_package_delivery_verdicts(tmp_path, kwargs, verdict):
+    _write(tmp_path, "package_delivery", _delivery(**kwargs))
+    assert claims.claim_package_delivery(stats.Results(tmp_path)).verdict == verdict
+
+
+def test_package_delivery_skips_experts_that_do_not_count(tmp_path):
+    perf = pd.concat([_delivery(), _delivery(ours_nodes=300, experts=("a2c",))])
+    _write(tmp_path, "package_delivery", perf)
+    assert claims.claim_package_delivery(stats.Results(tmp_path)).verdict == NOT_REPRODUCED
+    _experts(tmp_path, {("PackageDelivery-v0", "a2c"): "excluded"})
+    claim = claims.claim_package_delivery(stats.Results(tmp_path))
+    assert claim.verdict == REPRODUCED and "left out: a2c" in claim.measured
+    _experts(tmp_path, {("PackageDelivery-v0", e): "excluded" for e in ("a2c", "dqn")})
+    assert claims.claim_package_delivery(stats.Results(tmp_path)).verdict == NOT_MEASURED
+
+
+# --- the report -------------------------------------------------------------------------------
+
+def test_cells_name_their_interval():
+    assert report.format_cell([97.25]) == "97.2 (1 seed)"
+    assert report.format_cell([97.0, 99.0, 98.0]) == "98.0 (97.0 to 99.0, 3 seeds)"
+    five = report.format_cell([90.0, 95.0, 100.0, 96.0, 94.0])
+    assert five.startswith("95.0 [") and "seeds" not in five
+    assert report.format_cell([]) == ""
+
+
+def test_report_marks_experts_that_do_not_count(tmp_path):
+    cells = {**_simple(99.5), ("highway-fast-v0", "a2c", "imitation-bt"): 100.0,
+             ("highway-fast-v0", "a2c", "bc"): 100.0}
+    _write(tmp_path, "distillation", _grid(cells))
+    _experts(tmp_path, {("highway-fast-v0", "a2c"): "constant-action"})
+    res = stats.Results(tmp_path)
+    block = report.readme_block(res)
+    assert "| highway-fast-v0 | a2c † |" in block
+    assert "† highway-fast-v0 a2c: constant-action expert (evidence highway-fast-v0 a2c)" in block
+    assert "95 % CI" not in block and "range, min to max" in block
+    text = report.report_markdown(res)
+    assert "| highway-fast-v0 | a2c † |" in text and "## Beyond the paper" in text
+    assert "IQM" in text
+
+
+def test_beyond_the_paper_reads_its_tables(tmp_path):
+    res = stats.Results(tmp_path)
+    assert report.beyond_markdown(res).count("_not measured") == len(report.BEYOND)
+    _write(tmp_path, "synthesis", pd.DataFrame([
+        {"task": "CartPole-v1", "expert": "dqn", "method": m, "seed": 0, "nodes": n}
+        for m, n in [("imitation-bt", 20), ("decision-list", 10)]]))
+    _write(tmp_path, "front", pd.DataFrame({"task": ["CartPole-v1"], "expert": ["dqn"],
+                                            "method": ["refined"], "nodes": [9],
+                                            "retention_norm": [97.0]}))
+    text = report.beyond_markdown(res)
+    assert "_not measured" not in text
+    assert "| CartPole-v1 | dqn | 20.0 | 10.0 | 0.50 |" in text
+    assert "| CartPole-v1 | dqn | refined | 9.0 | 97.0 |" in text
+
+
+def test_deviations_name_the_experts_networks_and_steps(tmp_path):
+    _experts(tmp_path, {("CartPole-v1", "dqn"): "ok"})
+    manifest = pd.read_csv(tmp_path / "experts" / "manifest.csv")
+    manifest = pd.concat([manifest, manifest.assign(algo="ppo", net_arch="256x256",
+                                                    timesteps=20_000)])
+    manifest.to_csv(tmp_path / "experts" / "manifest.csv", index=False)
+    text = report.deviations_markdown(stats.Results(tmp_path))
+    assert "1 use 256x256 (CartPole PPO)" in text
+    assert "1,000 to 20,000 steps" in text and "2,000,000" in text
+    assert "highway-fast-v0 (10)" in text  # the iterations, from ibt.distill.TASK_BUDGETS
+
+
+def test_readme_blocks_replace_only_their_marked_section(tmp_path):
     readme = tmp_path / "README.md"
-    readme.write_text(f"# T\nbefore\n{report.README_BEGIN}\nold\n{report.README_END}\nafter\n")
+    readme.write_text(f"# T\nbefore\n{report.README_BEGIN}\nold\n{report.README_END}\nmid\n"
+                      f"{report.DEVIATIONS_BEGIN}\nold2\n{report.DEVIATIONS_END}\nafter\n")
     assert report.update_readme(readme, f"{report.README_BEGIN}\nnew\n{report.README_END}")
+    assert report.update_readme(readme, report.deviations_block(stats.Results(tmp_path)),
+                                report.DEVIATIONS_BEGIN, report.DEVIATIONS_END)
     text = readme.read_text()
     assert "new" in text and "old" not in text and text.endswith("after\n")
+    assert "**Retention.**" in text
     assert not report.update_readme(readme, f"{report.README_BEGIN}\nnew\n{report.README_END}")
     (tmp_path / "bad.md").write_text("no markers")
     with pytest.raises(ValueError, match="markers"):
@@ -86,24 +385,18 @@ def test_timings_read_the_make_figures_record(tmp_path):
     (tmp_path / "results").mkdir()
     (tmp_path / "results" / "make_figures.json").write_text(
         json.dumps({"seconds": 123.4, "machine": "x86_64, 2 cores", "date": "2026-11-22"}))
-    assert "123 s" in report.timings_markdown(report.Results(tmp_path))
+    assert "123 s" in report.timings_markdown(stats.Results(tmp_path))
 
 
-def test_cells_below_the_minimum_seeds_say_how_many_they_have():
-    from ibt.report import _cell
+def test_the_report_does_not_import_the_grid_runner():
+    import ast
+    from pathlib import Path
 
-    assert _cell(pd.DataFrame({"retention_norm": [97.25]})) == "97.2 (1 seed)"
-    assert _cell(pd.DataFrame({"retention_norm": [97.0, 99.0]})).endswith("] (2 seeds)")
-    assert "seed" not in _cell(pd.DataFrame({"retention_norm": [97.0, 98.0, 99.0]}))
-    assert _cell(pd.DataFrame({"retention_norm": [90.0, 100.0]})).startswith("95.0 [")
+    import ibt
 
-
-def test_a_tie_with_the_best_method_counts_as_best_on_stochastic_tasks(tmp_path):
-    cells = {(task, "ppo", method): 100.0 for task in report.STOCHASTIC_TASKS
-             for method in ("bc", "viper", "imitation-bt")}
-    _write(tmp_path, "distillation", _grid(cells))
-    assert report.claim_stochastic(report.Results(tmp_path)).verdict == "reproduced"
-    cells[("highway-fast-v0", "ppo", "viper")] = 101.0
-    _write(tmp_path, "distillation", _grid(cells))
-    claim = report.claim_stochastic(report.Results(tmp_path))
-    assert claim.verdict == "partly" and "best viper" in claim.measured
+    for name in ("stats", "claims", "report"):
+        tree = ast.parse((Path(ibt.__file__).parent / f"{name}.py").read_text())
+        imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import)
+                     for a in n.names}
+        assert not imported & {"ibt.experiments", "ibt.pipeline", "ibt.artifacts.load_or_compute"}
