@@ -137,14 +137,15 @@ def _element(node: Node, bt: BehaviorTree, ids: list[str], keys: list[str],
             "op": node.op, "threshold": threshold_text(node.threshold)})
     if isinstance(node, Action):
         return ET.Element("Action", {"ID": ids[node.action]})
+    attrib: dict[str, str] = {}
     if isinstance(node, Inverter):
-        tag, attrib = "Inverter", {}
+        tag = "Inverter"
     elif isinstance(node, Sequence):
-        tag, attrib = "Sequence", {}
+        tag = "Sequence"
     elif isinstance(node, Selector):
         tag, attrib = "Fallback", {"name": SELECTOR_NAME}
     else:
-        tag, attrib = "Fallback", {}
+        tag = "Fallback"
     element = ET.Element(tag, attrib)
     element.extend(_element(child, bt, ids, keys, flavour) for child in node.children)
     return element

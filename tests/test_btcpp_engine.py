@@ -37,6 +37,7 @@ from ibt.tasks import get_task
 
 ROOT = Path(__file__).resolve().parent.parent
 TREES = sorted(DATA_DIR.glob("trees/*/*/*.json"))
+XMLS = sorted(DATA_DIR.glob("trees/*/*/*.xml"))  # BehaviorTree.CPP files committed beside them
 ROLLOUT_TASKS = ("CartPole-v1", "MountainCar-v0", "PackageDelivery-v0")
 MIN_STATES = 10_000
 
@@ -81,6 +82,7 @@ def _check_agreement(path: Path) -> int:
                           f"{len(states)} states; first {states[bad[0]].tolist()}: engine "
                           f"{got[bad[0]]}, ibt {want[bad[0]]}")
     assert len(states) >= MIN_STATES and (want != NO_DECISION).all()
+    assert engine.actions_ticked == len(states)  # one action a tick (the README's C++ relies on it)
     return len(states)
 
 
@@ -101,6 +103,19 @@ def test_engine_agrees_with_ibt_on_a_subset_of_committed_trees(path):
 @pytest.mark.parametrize("path", TREES, ids=_name)
 def test_engine_agrees_with_ibt_on_every_committed_tree(path):
     _check_agreement(path)
+
+
+@pytest.mark.parametrize("path", XMLS, ids=_name)
+def test_committed_xml_files_run_in_the_engine(path):
+    """A committed XML loads with only its actions, decides as ibt reads it, and is the same
+    tree as the JSON of the same name."""
+    task = get_task(path.parts[-3])
+    engine = load_engine_tree(path.read_text(), task, source=_name(path))
+    states = agreement_states(engine.bt, task, n_random=2000, seed=0)
+    assert np.array_equal(engine.decide(states), engine.bt.decide(states))
+    twin = path.with_suffix(".json")
+    if twin.exists():
+        assert engine.bt.root == load_json(twin).root
 
 
 @pytest.mark.parametrize("path", [
