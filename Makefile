@@ -9,7 +9,7 @@ export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 
 .DEFAULT_GOAL := help
-.PHONY: help setup check-dot figures reproduce smoke test test-slow lint lab lock clean distclean
+.PHONY: help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -37,6 +37,10 @@ figures: setup ## re-run every notebook (paper profile, cached results) and rewr
 	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start )); \
 	$(BIN)/python -m ibt.cache stale --reads build/cache-reads  # what this run skipped
 
+animations: setup ## the GIFs of Behavior Trees in motion, figures/anim/*.gif (about a minute)
+	@start=$$(date +%s); nice -n 10 $(BIN)/python -m ibt.animate --out figures/anim; \
+	echo "make animations: $$(( $$(date +%s) - start )) s"
+
 reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
 	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started
 	@echo "Last time on this kind of machine each stage took (an estimate; progress bars follow):"
@@ -52,8 +56,10 @@ smoke: setup ## run every notebook under the smoke profile into build/smoke (sec
 		IBT_PROFILE=smoke $(BIN)/papermill --no-progress-bar --cwd notebooks $$nb build/smoke/$$(basename $$nb); \
 	done
 
-lint: setup ## ruff over the package, tests and notebooks
+lint: setup ## ruff, mypy (the package) and the import-layer contract (pyproject.toml)
 	$(BIN)/ruff check ibt tests notebooks
+	$(BIN)/mypy
+	$(BIN)/lint-imports --no-cache
 
 test: setup lint ## ruff + unit/property tests + every notebook under the smoke profile (nbval)
 	$(BIN)/python -m pytest -m "not slow" -q
@@ -77,7 +83,7 @@ lock: ## re-resolve requirements.in into environment.lock (in a scratch venv)
 	rm -rf build/lockenv
 
 clean: ## remove scratch files (build/, caches); keeps .venv and committed data
-	rm -rf build .pytest_cache .ruff_cache .hypothesis
+	rm -rf build .pytest_cache .ruff_cache .hypothesis .mypy_cache
 	find . -name __pycache__ -not -path './.venv/*' -prune -exec rm -rf {} +
 
 distclean: clean ## also remove .venv

@@ -613,7 +613,7 @@ class TraceStep:
 def tick(tree: BehaviorTree, features: Seq[float] | np.ndarray) -> tuple[int, list[TraceStep]]:
     """Tick one state (shape exactly ``(n_features,)``); return the decision and the trace of
     every node ticked, in order, each named by its depth-first position (:func:`indexed`)."""
-    x = as_features(features)
+    x = as_features(np.asarray(features))
     if x.shape != (tree.n_features,):
         raise ValueError(f"tick takes one state of shape ({tree.n_features},), got shape "
                          f"{x.shape}; for a batch use bt.decide(states)")

@@ -186,12 +186,12 @@ def signature_map(cache_dir: str | Path, report: Migration) -> dict[tuple[str, s
             if seen.setdefault(old, new) != new:
                 report.within_run_collisions += 1
             found[(run.task, old.hex())].add(new)
-    out = {}
-    for (task, old), new in found.items():
-        if len(new) == 1:
-            out[(task, old)] = next(iter(new))
+    out: dict[tuple[str, str], str] = {}
+    for (task, old_hex), digests in found.items():
+        if len(digests) == 1:
+            out[(task, old_hex)] = next(iter(digests))
         else:
-            report.collisions.append(f"{task}: one old signature, digests {sorted(new)}")
+            report.collisions.append(f"{task}: one old signature, digests {sorted(digests)}")
     return out
 
 
@@ -233,6 +233,7 @@ def migrate(cache_dir: str | Path, *, dry_run: bool = False) -> Migration:
                 and manifest.get("key_packages") == now:
             target = entry.path.parent / cache_key(entry.kind, manifest["params"])
         elif entry.status == "legacy":
+            assert manifest is not None  # a legacy entry's status was read off its manifest
             recorded = {p: manifest.get("versions", {}).get(p) for p in KEY_PACKAGES}
             if recorded != now:
                 report.refused.append((entry.name, f"written with {recorded}, now {now}"))

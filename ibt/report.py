@@ -142,7 +142,7 @@ def headline_markdown(res: Results) -> str:
              "Imitation-BT nodes | RE:BT-Espresso nodes |", "|---|---|---|---|---|---|---|"]
     for (task, expert), part in grid.groupby(["task", "expert"], sort=False):
         ours, bc = part[part.method == "imitation-bt"], part[part.method == "bc"]
-        nodes = ("", "")
+        nodes: tuple[str, ...] = ("", "")
         if syn is not None and {"task", "expert", "method", "nodes"} <= set(syn.columns):
             s = syn[(syn.task == task) & (syn.expert == expert)]
             nodes = tuple(_fmt(s[s.method == m].nodes.mean(), 0) if (s.method == m).any()

@@ -59,29 +59,28 @@ def interval_label(kind: str, n: int, unit: str = "seed") -> str:
     return f"range over {units}"
 
 
-def bootstrap_ci(values: Sequence[float], n_boot: int = N_BOOT, level: float = CI_LEVEL,
-                 seed: int = BOOT_SEED) -> tuple[float, float]:
+def bootstrap_ci(values: Sequence[float] | np.ndarray, n_boot: int = N_BOOT,
+                 level: float = CI_LEVEL, seed: int = BOOT_SEED) -> tuple[float, float]:
     """Percentile bootstrap confidence interval of the mean."""
-    values = np.asarray(values, dtype=float)
-    if len(values) < 2:
-        return (float(values.mean()), float(values.mean())) if len(values) else (np.nan, np.nan)
+    x = np.asarray(values, dtype=float)
+    if len(x) < 2:
+        return (float(x.mean()), float(x.mean())) if len(x) else (np.nan, np.nan)
     rng = np.random.default_rng(seed)
-    means = rng.choice(values, size=(n_boot, len(values)), replace=True).mean(axis=1)
+    means = rng.choice(x, size=(n_boot, len(x)), replace=True).mean(axis=1)
     alpha = (1 - level) / 2
     return float(np.quantile(means, alpha)), float(np.quantile(means, 1 - alpha))
 
 
-def interval(values: Sequence[float]) -> Interval:
+def interval(values: Sequence[float] | np.ndarray) -> Interval:
     """The mean with the range (n < :data:`MIN_SEEDS_FOR_CI`) or the bootstrap CI."""
-    values = np.asarray(values, dtype=float)
-    n = len(values)
+    x = np.asarray(values, dtype=float)
+    n = len(x)
     if n == 0:
         return Interval(np.nan, np.nan, np.nan, 0, "range")
     if n < MIN_SEEDS_FOR_CI:
-        return Interval(float(values.mean()), float(values.min()), float(values.max()), n,
-                        "range")
-    low, high = bootstrap_ci(values)
-    return Interval(float(values.mean()), low, high, n, "ci")
+        return Interval(float(x.mean()), float(x.min()), float(x.max()), n, "range")
+    low, high = bootstrap_ci(x)
+    return Interval(float(x.mean()), low, high, n, "ci")
 
 
 def summarise(results: pd.DataFrame, value: str = "retention_norm",
@@ -120,20 +119,20 @@ def iqm(scores: np.ndarray) -> float:
     return float(aggregate_iqm(np.asarray(scores, dtype=float).reshape(1, -1)))
 
 
-def stratified_iqm(cells: Sequence[Sequence[float]], reps: int = N_BOOT,
+def stratified_iqm(cells: Sequence[Sequence[float] | np.ndarray], reps: int = N_BOOT,
                    level: float = CI_LEVEL, seed: int = BOOT_SEED) -> tuple[float, float, float]:
     """IQM over every run of ``cells`` and its stratified-bootstrap percentile CI.
 
     Each bootstrap sample redraws every cell's runs with replacement, within the cell.
     """
-    cells = [np.asarray(c, dtype=float) for c in cells if len(c)]
-    if not cells:
+    runs = [np.asarray(c, dtype=float) for c in cells if len(c)]
+    if not runs:
         return np.nan, np.nan, np.nan
-    point = iqm(np.concatenate(cells))
+    point = iqm(np.concatenate(runs))
     rng = np.random.default_rng(seed)
     draws = np.empty(reps)
     for b in range(reps):
-        draws[b] = iqm(np.concatenate([c[rng.integers(0, len(c), len(c))] for c in cells]))
+        draws[b] = iqm(np.concatenate([c[rng.integers(0, len(c), len(c))] for c in runs]))
     alpha = (1 - level) / 2
     return point, float(np.quantile(draws, alpha)), float(np.quantile(draws, 1 - alpha))
 

@@ -200,7 +200,9 @@ register_task(Task(
 def _package_delivery() -> Task:
     from ibt.envs import package_delivery as pd
 
-    high = tuple(float(n - 1) for n in pd.PackageDeliveryEnv().observation_space.nvec)
+    space = pd.PackageDeliveryEnv().observation_space
+    assert isinstance(space, gym.spaces.MultiDiscrete)
+    high = tuple(float(n - 1) for n in space.nvec)
     return Task(
         name="PackageDelivery-v0", gym_id="PackageDelivery-v0",
         feature_names=tuple(pd.FEATURE_NAMES), action_names=tuple(pd.ACTION_NAMES),

@@ -141,7 +141,9 @@ OBS_NVEC = np.array([len(LOCATIONS), MAX_BATTERY + 1, 3, 3, 3], dtype=np.int64)
 class PackageDeliveryEnv(gymnasium.Env):
     """Robot package-delivery domain (see the module docstring for the full specification)."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}
+    # a class attribute (ruff's RUF012) that gymnasium's Env annotates as an instance one
+    metadata: ClassVar[dict[str, Any]] = {  # type: ignore[misc]
+        "render_modes": ["rgb_array"], "render_fps": 4}
 
     def __init__(
         self,
