@@ -5,6 +5,7 @@
     python -m ibt synthesize tree.joblib -o bt.json       # decision tree -> behavior tree
     python -m ibt evaluate bt.json --task CartPole-v1     # returns of a BT, tree or expert
     python -m ibt export bt.json --format btcpp-xml -o bt.xml
+    python -m ibt run-btcpp bt.xml --task CartPole-v1     # BehaviorTree.CPP ticks the BT
 
 Your own environment: ``--env-module PKG.MODULE`` (every subcommand) imports a module that
 registers gymnasium environments and, optionally, ibt tasks (``ibt.tasks.register_task``, for
@@ -384,13 +385,28 @@ def _export(args: argparse.Namespace) -> int:
     elif args.format == "btcpp-xml":
         from ibt.btcpp import to_btcpp_xml
 
-        atomic_write_text(out, to_btcpp_xml(bt))
+        atomic_write_text(out, to_btcpp_xml(bt, flavour=args.flavour))
     elif args.format == "dot":
         atomic_write_text(out, to_graphviz(bt).source)
     else:
         save_drawing(to_graphviz(bt), out.with_suffix(""), formats=(args.format,))
     print(f"written {out}")
     return 0
+
+
+def _run_btcpp(args: argparse.Namespace) -> int:
+    from ibt.btcpp_engine import run_btcpp
+    from ibt.tasks import resolve_task
+
+    xml = check_input(args.xml, "BehaviorTree.CPP XML", "write one with `python -m ibt export "
+                      "BT.json --format btcpp-xml -o BT.xml`")
+    run = run_btcpp(xml, resolve_task(args.task), args.episodes, args.groot_port,
+                    args.step_delay)
+    print(run.summary())
+    if not run.ok:
+        print("error: BehaviorTree.CPP and the Python BT disagree (a bug: please report it)",
+              file=sys.stderr)
+    return 0 if run.ok else 1
 
 
 # ----------------------------------------------------------------------------- parser
@@ -474,7 +490,23 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--format", required=True, choices=EXPORT_FORMATS)
     ex.add_argument("-o", "--output", required=True,
                     help="file to write, with the format's suffix (.json, .dot, .svg, .png, .xml)")
+    ex.add_argument("--flavour", default="portable", choices=("portable", "check-feature"),
+                    help="btcpp-xml only: 'portable' (default) runs in stock BehaviorTree.CPP "
+                    "with ScriptConditions on blackboard keys; 'check-feature' needs a custom "
+                    "C++ CheckFeature condition node")
     ex.set_defaults(func=_export)
+
+    rb = command("run-btcpp", help="roll a BehaviorTree.CPP XML out with the engine "
+                 "(behaviortreepy) ticking, beside the Python BT on the same seeds")
+    rb.add_argument("xml", help="XML from `export --format btcpp-xml` (portable flavour)")
+    rb.add_argument("--task", required=True, help="the task whose BT the XML is")
+    rb.add_argument("--episodes", type=POSITIVE, default=10)
+    rb.add_argument("--groot-port", type=POSITIVE, default=None, metavar="PORT",
+                    help="publish the tree to Groot2 on this port while it runs "
+                    "(behaviortreepy's Groot2Publisher; connect Groot2 to it)")
+    rb.add_argument("--step-delay", type=float, default=0.0, metavar="SECONDS",
+                    help="sleep between steps, to watch a run in Groot2")
+    rb.set_defaults(func=_run_btcpp)
     return parser
 
 
