@@ -1,7 +1,12 @@
 """Notebook housekeeping: scrub volatile metadata after papermill runs; time ``make figures``.
 
 ``python -m ibt.notebooks scrub NB...`` removes timings, kernel ids and papermill's run records
-so that a re-executed notebook differs from the committed one only where results changed.
+so that a re-executed notebook differs from the committed one only where results changed. It
+also drops widget state: the notebook's ``widgets`` metadata (the saved models) and, in
+outputs, the ``application/vnd.jupyter.widget-view+json`` views, which point at those models and
+draw as "model not found" without them; an output left with only the widget's ``text/plain``
+repr (``VBox(children=...)``) goes too. The committed notebooks carry the static rendering of
+their widgets (see :mod:`ibt.widgets`), which needs none of this.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import nbformat
 
 VOLATILE_CELL_KEYS = ("papermill", "execution", "collapsed", "scrolled")
 VOLATILE_NOTEBOOK_KEYS = ("papermill", "widgets")
+WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
 _ADDRESS = re.compile(r" at 0x[0-9a-f]+>")
 
 
@@ -31,14 +37,24 @@ def scrub(path: str | Path) -> None:
         for key in VOLATILE_CELL_KEYS:
             cell.metadata.pop(key, None)
         if cell.cell_type == "code":  # progress bars (stderr with carriage returns) are noise
-            cell["outputs"] = [o for o in cell.get("outputs", [])
-                               if not (o.get("name") == "stderr" and "\r" in o.get("text", ""))]
+            cell["outputs"] = [o for o in map(_without_widget_view, cell.get("outputs", []))
+                               if o is not None and not (o.get("name") == "stderr"
+                                                         and "\r" in o.get("text", ""))]
             for output in cell.get("outputs", []):
                 output.get("metadata", {}).pop("execution", None)
                 plain = output.get("data", {}).get("text/plain")
                 if isinstance(plain, str):  # object reprs carry memory addresses
                     output["data"]["text/plain"] = _ADDRESS.sub(">", plain)
     atomic_write_text(path, nbformat.writes(nb) + "\n")
+
+
+def _without_widget_view(output: dict) -> dict | None:
+    """``output`` without its widget view; ``None`` when nothing but the widget's repr is left."""
+    data = output.get("data")
+    if not data or WIDGET_VIEW not in data:
+        return output
+    data.pop(WIDGET_VIEW)
+    return output if set(data) - {"text/plain"} else None
 
 
 def record_time(seconds: float, data_dir: Path | None = None) -> Path:
