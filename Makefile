@@ -9,7 +9,7 @@ export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 
 .DEFAULT_GOAL := help
-.PHONY: help setup check-dot figures reproduce smoke test test-slow lint lab lock clean distclean
+.PHONY: help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -36,6 +36,10 @@ figures: setup ## re-run every notebook (paper profile, cached results) and rewr
 	done; \
 	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start )); \
 	$(BIN)/python -m ibt.cache stale --reads build/cache-reads  # what this run skipped
+
+animations: setup ## the GIFs of Behavior Trees in motion, figures/anim/*.gif (about a minute)
+	@start=$$(date +%s); nice -n 10 $(BIN)/python -m ibt.animate --out figures/anim; \
+	echo "make animations: $$(( $$(date +%s) - start )) s"
 
 reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
 	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started

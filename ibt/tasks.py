@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import csv
 import difflib
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 import importlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -60,19 +63,25 @@ class Task:
             kwargs.setdefault("max_episode_steps", self.max_episode_steps)
         return gym.make(self.gym_id, **kwargs)
 
+    @property
+    def render_driver(self) -> str | None:
+        """The SDL video driver this task's ``rgb_array`` frames need (None: any)."""
+        return RENDER_DRIVERS.get(self.setup_module or "")
+
     def render_frame(self, seed: int = 0, steps: int = 5) -> np.ndarray:
         """An RGB frame a few random steps after a seeded reset (for figures)."""
-        env = self.make_env(render_mode="rgb_array")
-        try:
-            env.reset(seed=seed)
-            env.action_space.seed(seed)
-            for _ in range(steps):
-                _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-                if terminated or truncated:
-                    env.reset(seed=seed)
-            return np.asarray(env.render())
-        finally:
-            env.close()
+        with sdl_video_driver(self.render_driver):
+            env = self.make_env(render_mode="rgb_array")
+            try:
+                env.reset(seed=seed)
+                env.action_space.seed(seed)
+                for _ in range(steps):
+                    _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+                    if terminated or truncated:
+                        env.reset(seed=seed)
+                return np.asarray(env.render())
+            finally:
+                env.close()
 
     def features(self, obs: np.ndarray) -> np.ndarray:
         """Raw observations (a batch) -> float32 feature matrix ``(n, n_features)``."""
@@ -106,6 +115,33 @@ class Task:
                         return float(row["mean_return"])
         raise LookupError(f"no random-policy return for {self.name} in {path}; "
                           f"run `python -m ibt random-baselines {self.name}`")
+
+
+#: SDL video drivers that some renderers need: highway-env draws all-black ``rgb_array`` frames
+#: under ``dummy`` (what the Makefile exports) and real ones under ``offscreen``
+RENDER_DRIVERS: dict[str, str] = {"highway_env": "offscreen"}
+
+
+@contextmanager
+def sdl_video_driver(name: str | None) -> Iterator[None]:
+    """pygame renders with SDL's video driver ``name`` inside the block (None: unchanged);
+    the driver before it is restored afterwards."""
+    before = os.environ.get("SDL_VIDEODRIVER")
+    if name is None or before == name:
+        yield
+        return
+    import pygame
+
+    pygame.display.quit()  # the driver is chosen when the display starts
+    os.environ["SDL_VIDEODRIVER"] = name
+    try:
+        yield
+    finally:
+        pygame.display.quit()
+        if before is None:
+            os.environ.pop("SDL_VIDEODRIVER", None)
+        else:
+            os.environ["SDL_VIDEODRIVER"] = before
 
 
 _SPACES: dict[str, Any] = {}

@@ -126,7 +126,7 @@ def test_categorical_labels_read_as_categories():
 # ------------------------------------------------------------- node identity, shapes, proofs
 def test_a_node_object_used_twice_gets_two_positions_in_trace_and_drawing():
     from ibt.bt import indexed
-    from ibt.export import to_graphviz
+    from ibt.export import drawing_elements, to_graphviz
 
     # TREE uses the one object A_LOW twice (positions 2 and 7 in depth-first order)
     positions = [i for i, (node, _) in enumerate(indexed(TREE.root)) if node is A_LOW]
@@ -136,10 +136,13 @@ def test_a_node_object_used_twice_gets_two_positions_in_trace_and_drawing():
     assert [(s.index, s.label) for s in trace] == [
         (0, "Selector"), (1, "Sequence"), (2, "a <= 0.5"), (5, "Sequence"), (6, "Inverter"),
         (7, "a <= 0.5"), (8, "right")]
-    source = to_graphviz(TREE).source
-    edges = [line.split("->") for line in source.splitlines() if "->" in line]
-    targets = sorted(int(b.strip().split()[0][1:]) for _, b in edges)
-    assert targets == list(range(1, TREE.node_count))  # every node but the root, once
+    # the drawing shows every position, the two A_LOW positions in two places (rows)
+    elements = drawing_elements(TREE)
+    assert sorted(elements) == list(range(TREE.node_count))
+    assert elements[2] != elements[7]
+    # Expect: highlighting position 2 marks one row only, not position 7's
+    source = to_graphviz(TREE, highlight={2: False}, legend=False).source
+    assert source.count("✗") == 1 and "✓" not in source
 
 
 @pytest.mark.parametrize(("call", "message"), [

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ibt.bt import Action, BehaviorTree, Condition, Selector, Sequence
-from ibt.export import require_dot, to_graphviz, trace_graph
+from ibt.export import drawing_elements, require_dot, to_graphviz, trace_graph
 from ibt.speed import NotCompilable, compile_python
 from ibt.synthesis import imitation_bt
 from tests.conftest import fit_tree
@@ -34,8 +34,9 @@ def test_trace_drawing_highlights_ticked_nodes():
     bt = imitation_bt(tree, TOY).bt
     source = trace_graph(bt, [0.0, 0.0, 0.0, 0.0]).source
     assert "penwidth=3" in source
-    assert source.count("->") == bt.node_count - 1
-    assert to_graphviz(bt).source.count("label=") == bt.node_count
+    assert "◆" in source  # the deciding condition is marked
+    assert sorted(drawing_elements(bt)) == list(range(bt.node_count))
+    assert "✓" not in to_graphviz(bt).source
 
 
 def test_missing_dot_names_the_fix(monkeypatch):

@@ -297,6 +297,15 @@ def _material(img: np.ndarray, cy: int, cx: int, material: int) -> None:
     _fill(img, cy - h, cy + h, cx - h, cx + h, color)
 
 
+def render_layout() -> dict[str, tuple[int, int]]:
+    """Where :func:`render_state` draws each place and the battery bar: name -> pixel (x, y)
+    at which a figure can label it (the lower part of each place's square)."""
+    spots = {name: (_place_x(loc) + _SQ // 2, _TOP + _SQ - 10)
+             for loc, name in enumerate(LOCATIONS)}
+    spots["battery"] = (_W // 2, 181)
+    return spots
+
+
 def render_state(obs: np.ndarray, delivered_heavy: int = 0, delivered_light: int = 0) -> np.ndarray:
     """Draw an observation (plus delivery tallies) as a ``200x300x3`` uint8 image."""
     loc, battery, carry, za, zb = (int(v) for v in np.asarray(obs).reshape(-1)[:5])

@@ -1,0 +1,58 @@
+"""The BT in motion: GIFs render, follow the BT's decisions, and highway frames are not black."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from ibt.animate import CLIPS, Clip, best_expert, episode, film, main
+from ibt.export import load_json
+from ibt.paths import DATA_DIR
+from ibt.tasks import get_task
+
+pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
+
+
+def test_the_clips_cover_the_five_tasks_of_the_issue():
+    assert {"CartPole-v1", "MountainCar-v0", "FrozenLake-v1", "LunarLander-v3",
+            "PackageDelivery-v0"} <= {clip.task for clip in CLIPS}
+
+
+def test_best_expert_skips_constant_action_bts():
+    # Expect: highway's A2C expert has the highest return but a one-action BT (2 nodes)
+    task = get_task("highway-fast-v0")
+    algo = best_expert(task)
+    assert load_json(DATA_DIR / "trees" / task.name / algo / "imitation-bt.json").node_count > 2
+    assert best_expert(get_task("MountainCar-v0")) == "dqn"  # -99.8, the best of the three
+
+
+def test_an_episode_acts_as_the_bt_decides():
+    task = get_task("FrozenLake-v1")
+    bt = load_json(DATA_DIR / "trees" / task.name / "dqn" / "imitation-bt.json")
+    steps = list(episode(task, bt, seed=0, max_steps=20))
+    # Expect: the non-slippery lake is walked along the BT's greedy path to the goal
+    assert [int(s.features[0]) for s in steps] == [0, 4, 8, 9, 10, 14]
+    assert all(s.action == int(bt.decide(s.features[None])[0]) for s in steps)
+    assert steps[0].frame.ndim == 3
+
+
+def test_film_writes_a_gif_of_every_drawn_step(tmp_path):
+    from PIL import Image
+
+    facts = film(Clip("FrozenLake-v1", 20, 1, 200), tmp_path)
+    with Image.open(facts["path"]) as gif:
+        assert gif.n_frames == facts["frames"] == facts["steps"] == 6
+        assert gif.size[0] == 840
+    assert facts["kb"] < 2048
+
+
+def test_highway_frames_are_rendered_not_black():
+    frame = get_task("highway-fast-v0").render_frame(seed=0, steps=0)
+    assert frame.std() > 5 and len(np.unique(frame.reshape(-1, 3), axis=0)) > 3
+
+
+def test_an_unknown_clip_is_a_clear_error(capsys):
+    assert main(["Pong-v5"]) == 2
+    assert "no clip for 'Pong-v5'" in capsys.readouterr().err
