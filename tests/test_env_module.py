@@ -154,3 +154,49 @@ def test_a_fresh_process_is_told_the_missing_env_module_and_the_hint_works(user,
                          text=True, env=environ, cwd=tmp_path, timeout=120)
     assert ran.returncode == 0, ran.stderr
     assert (tmp_path / "bt.json").exists()
+
+
+def test_the_readmes_own_environment_commands_work(user, tmp_path, monkeypatch):
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    section = readme.split("### Distil your own agent", 1)[1]
+    block = section.split("```bash", 1)[1].split("```", 1)[0]
+    commands = [line.split("#")[0].strip() for line in block.strip().splitlines()]
+    assert len(commands) >= 4 and all(c.startswith("python -m ibt ") for c in commands)
+    monkeypatch.chdir(tmp_path)
+    for command in commands:
+        argv = [{"my_envs": "ibt_user_corridor", "MyEnv-v0": "Corridor-v0",
+                 "my_envs:MyEnv-v0": "ibt_user_corridor:Corridor-v0",
+                 "my_agent.zip": str(user / "ppo.zip")}.get(a, a)
+                for a in shlex.split(command)[3:]]
+        if argv[0] == "distill":
+            argv += TINY
+        if argv[0] == "evaluate":
+            argv += ["--episodes", "2"]
+        assert main(argv) == 0, command
+    assert (tmp_path / "bt.png").exists()
+
+
+@pytest.mark.slow
+def test_a_trained_expert_of_the_users_environment_keeps_its_return_as_a_bt(user, tmp_path,
+                                                                            capsys):
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    checkpoint = tmp_path / "ppo.zip"
+    model = PPO("MlpPolicy", gym.make("Corridor-v0"), n_steps=256, batch_size=64, seed=0,
+                device="cpu", policy_kwargs={"net_arch": [16]})
+    model.learn(20_000)
+    model.save(checkpoint)
+    env = ["--env-module", "ibt_user_corridor"]
+    tree, bt = tmp_path / "tree.joblib", tmp_path / "bt.json"
+    assert main(["distill", "Corridor-v0", "ppo", "--checkpoint", str(checkpoint), "-o",
+                 str(tree), "--iterations", "5", "--quiet", *env]) == 0
+    assert main(["synthesize", str(tree), "-o", str(bt), *env]) == 0
+    capsys.readouterr()
+    returns = {}
+    for policy in (["ppo", "--checkpoint", str(checkpoint)], [str(bt)]):
+        assert main(["evaluate", *policy, "--task", "Corridor-v0", "--episodes", "20", *env]) == 0
+        returns[policy[0]] = float(capsys.readouterr().out.split("mean return ")[1].split()[0])
+    assert returns["ppo"] > -30  # the expert reaches the goal
+    assert returns[str(bt)] >= returns["ppo"] - 2.0  # and so does its small BT
+    assert json.loads(bt.read_text())["root"]  # a BT of at most 16 leaves' rules
