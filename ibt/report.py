@@ -81,8 +81,7 @@ def status_footnotes(res: Results, shown: pd.DataFrame | None = None) -> str:
     for (task, algo), (status, evidence) in sorted(res.expert_status().items()):
         if status == "ok" or (pairs is not None and (task, algo) not in pairs):
             continue
-        what = ("excluded: below its quality bar" if status == "excluded"
-                else "constant-action expert")
+        what = "excluded" if status == "excluded" else "constant-action expert"
         lines.append(f"{STATUS_MARKS.get(status, '')} {task} {algo}: {what} ({evidence}); "
                      "its cells stay in the tables and count in no claim.")
     return "\n".join(f"- {line}" for line in lines)
@@ -190,7 +189,7 @@ def experts_markdown(res: Results) -> str:
         status = status if isinstance(status, str) and status else "ok"
         lines.append(f"| {r.task} | {r.algo} | {r.net_arch} | {int(r.timesteps):,} | "
                      f"{r.mean_return:.1f} | {'yes' if bool(r.meets_bar) else 'no'} | "
-                     f"{status} {STATUS_MARKS.get(status, '')} |")
+                     f"{_expert_label(status, status)} |")
     return "\n".join(lines)
 
 
