@@ -19,6 +19,8 @@ from ibt.tasks import Task, get_task
 FINAL_SEED_BASE = 1_000_000  # final evaluation: the same episodes for every method and expert
 SELECTION_SEED_BASE = 2_000_000  # best-tree selection (held out from training and final)
 TRAIN_SEED_BASE = 3_000_000  # distillation rollouts
+REFINE_SEED_BASE = 10_000_000  # refinement by return (1,000,000 per run seed)
+REFINE_SELECTION_OFFSET = 5_000  # refinement's held-out choice: selection seeds 5,000 and up
 
 
 def final_seeds(n: int) -> list[int]:
@@ -26,8 +28,11 @@ def final_seeds(n: int) -> list[int]:
     return [FINAL_SEED_BASE + i for i in range(n)]
 
 
-def selection_seeds(n: int, run_seed: int) -> list[int]:
-    return [SELECTION_SEED_BASE + 10_000 * run_seed + i for i in range(n)]
+def selection_seeds(n: int, run_seed: int, offset: int = 0) -> list[int]:
+    """Held-out episodes for choosing among candidates (``offset`` keeps uses apart)."""
+    if not (0 <= offset and offset + n <= 10_000):
+        raise ValueError(f"selection seeds {offset}..{offset + n} leave the run's block of 10,000")
+    return [SELECTION_SEED_BASE + 10_000 * run_seed + offset + i for i in range(n)]
 
 
 @dataclass
@@ -50,17 +55,21 @@ class Rollout:
 
 
 ActFn = Callable[[np.ndarray], np.ndarray]
+IndexedActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (obs, episode indices)
 
 
-def rollout(task: str | Task, act: ActFn, seeds: Sequence[int], *, n_envs: int = 16,
+def rollout(task: str | Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_envs: int = 16,
             collect: bool = False, budget: int | None = None,
             env_kwargs: dict[str, Any] | None = None,
-            on_step: Callable[[np.ndarray, np.ndarray], None] | None = None) -> Rollout:
+            on_step: Callable[[np.ndarray, np.ndarray], None] | None = None,
+            indexed: bool = False) -> Rollout:
     """Run one whole episode per seed with ``act`` (a batch of raw observations -> actions).
 
     ``budget``: stop *starting* episodes once this many steps have been taken (running episodes
     always finish; unused seeds are dropped). ``collect``: keep every observation batch.
-    ``on_step(obs, actions)`` sees each batch before it is stepped.
+    ``on_step(obs, actions)`` sees each batch before it is stepped. ``indexed``: call
+    ``act(obs, episodes)``, where ``episodes`` are the positions in ``seeds`` of the episodes
+    the rows belong to (how one batch runs several policies side by side, see ``ibt.refine``).
     """
     task = get_task(task)
     seeds = list(seeds)
@@ -93,7 +102,11 @@ def rollout(task: str | Task, act: ActFn, seeds: Sequence[int], *, n_envs: int =
             if not active:
                 break
             obs = np.stack([np.asarray(slot_obs[s]) for s in active])
-            actions = np.asarray(act(obs))
+            if indexed:
+                episodes = np.array([slot_episode[s] for s in active])
+                actions = np.asarray(act(obs, episodes))  # type: ignore[call-arg]
+            else:
+                actions = np.asarray(act(obs))  # type: ignore[call-arg]
             if on_step is not None:
                 on_step(obs, actions)
             if collect:

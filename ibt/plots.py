@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from itertools import pairwise
 from pathlib import Path
+from typing import Any
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -570,3 +571,61 @@ def package_delivery(frame: np.ndarray, node_types: pd.DataFrame, performance: p
         save_figure(fig, path)
     return fig
 
+
+def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.DataFrame,
+                         path: str | Path | None = None, columns: int = 2) -> plt.Figure:
+    """Retention against BT nodes, every method, one panel per task (the front, notebook 07).
+
+    ``points``: one row per run (columns task, method, bt_nodes, retention_norm); ``means``:
+    :func:`ibt.front.front_means` (a line per method through its leaf limits, error bars
+    on both axes); ``anchors``: published trees on our scale (:func:`ibt.front.anchor_table`).
+    """
+    tasks = list(dict.fromkeys(means["task"]))
+    columns = min(columns, len(tasks))
+    rows = -(-len(tasks) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(FIG_WIDTH, 2.7 * rows + 0.9),
+                             squeeze=False)
+    for ax in axes.flat[len(tasks):]:
+        ax.axis("off")
+    handles: dict[str, Any] = {}  # errorbar containers and scatter collections
+    for ax, task in zip(axes.flat, tasks, strict=False):
+        for k, method in enumerate(methods_in(means[means["task"] == task])):
+            style = method_style(method, k)
+            seeds = points[(points["task"] == task) & (points["method"] == method)]
+            ax.scatter(seeds["bt_nodes"], seeds["retention_norm"], s=9, alpha=0.35,
+                       color=style["color"], lw=0)
+            line = means[(means["task"] == task) & (means["method"] == method)]
+            line = line.sort_values("bt_nodes")
+            handle = ax.errorbar(line["bt_nodes"], line["retention_norm"],
+                                 yerr=[(line["retention_norm"] - line["low"]).clip(lower=0),
+                                       (line["high"] - line["retention_norm"]).clip(lower=0)],
+                                 fmt="o-" if method != "imitation-bt+" else "D-", ms=4,
+                                 capsize=2, lw=1.2, color=style["color"],
+                                 label=style["label"])
+            handles.setdefault(str(style["label"]), handle)
+        for anchor in anchors[anchors["task"] == task].drop_duplicates("source").itertuples():
+            handle = ax.scatter([anchor.tree_nodes], [anchor.retention_norm], marker="*",
+                                s=110, color="black", zorder=5,
+                                label=f"{anchor.source} (published)")
+            handles.setdefault(f"{anchor.source} (published)", handle)
+        ax.axhline(100, color="black", lw=0.8, ls=":")
+        ax.axhline(98, color=GREY, lw=0.8, ls="--")
+        ax.set_xscale("log")
+        values = pd.concat([points.loc[points["task"] == task, "retention_norm"],
+                            means.loc[means["task"] == task, "low"]])
+        ax.set_ylim(min(0.0, float(values.min()) - 5) if len(values) else 0, 110)
+        ax.set_title(task)
+        ax.set_xlabel("BT nodes (log)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("retention (%, random-norm.)")
+    fig.legend(list(handles.values()), list(handles.keys()), loc="upper center",
+               ncol=min(4, len(handles)), bbox_to_anchor=(0.5, 1.0), frameon=False)
+    caption = ("A line per method through its leaf limits: mean over seeds, error bars the "
+               "range (min to max) over seeds; faint dots are single seeds. BT nodes: the "
+               "smallest verified BT of each tree. Stars: published trees (node counts of "
+               "trees, not BTs), on our scale. Dotted: the expert; dashed: 98 %.")
+    fig.tight_layout(rect=(0, 0.0, 1, 0.94))
+    fig.text(0.5, 0.0, _wrap(caption, 110), ha="center", va="top", fontsize=9)
+    if path is not None:
+        save_figure(fig, path)
+    return fig
