@@ -47,9 +47,19 @@ SYNTHESISERS = ("imitation-bt", "decision-list")
 FRONT_TASKS = ("CartPole-v1", "Acrobot-v1", "MountainCar-v0", "LunarLander-v3",
                "highway-fast-v0", "PackageDelivery-v0")
 
-#: Refinement budgets per task (episodes are the budget; see ``RefineConfig``). Tasks absent
-#: here use ``RefineConfig()``.
-REFINE_BUDGETS: dict[str, RefineConfig] = {}
+_SMALL = ("shrink", "cma", "leaves", "prune", "cma")  # cut to the limit, tune, then prune
+
+#: Refinement budgets per task, in episodes (``RefineConfig``); tasks absent here use
+#: ``RefineConfig()``. Measured here: a CartPole episode of a good tree is 500 steps (~7 ms),
+#: Acrobot ~90 steps, MountainCar ~120, PackageDelivery 200 (~2 ms), LunarLander ~300-1000.
+REFINE_BUDGETS: dict[str, RefineConfig] = {
+    "CartPole-v1": RefineConfig(stages=_SMALL, episodes=8_000, cma_episodes=8,
+                                sweep_episodes=20),
+    "Acrobot-v1": RefineConfig(stages=_SMALL, episodes=8_000, cma_episodes=8,
+                               sweep_episodes=20),
+    "MountainCar-v0": RefineConfig(stages=_SMALL, episodes=10_000),
+    "PackageDelivery-v0": RefineConfig(stages=_SMALL, episodes=10_000),
+}
 
 
 @dataclass(frozen=True)
@@ -230,9 +240,21 @@ def point_row(cfg: Config, point: Point) -> dict[str, Any]:
     return row
 
 
-def front_table(cfg: Config, points: list[Point]) -> pd.DataFrame:
-    """Rows for ``points`` in order (cached steps are instant; the rest shows progress)."""
-    rows = [point_row(cfg, p) for p in tqdm(points, desc="front", disable=not cfg.progress)]
+def front_table(cfg: Config, points: list[Point], n_jobs: int | None = None) -> pd.DataFrame:
+    """Rows for ``points`` in order, computed by ``n_jobs`` processes (default: the profile's).
+
+    Cached points load instantly; every run is deterministic in its seed, so the number of
+    processes never changes a row.
+    """
+    from dataclasses import asdict
+
+    from joblib import Parallel, delayed
+
+    n_jobs = n_jobs or cfg.n_jobs
+    quiet = Config(**{**asdict(cfg), "progress": False})
+    jobs = Parallel(n_jobs=n_jobs, return_as="generator")(
+        delayed(point_row)(quiet, p) for p in points)
+    rows = list(tqdm(jobs, total=len(points), desc="front", disable=not cfg.progress))
     return pd.DataFrame(rows)
 
 
@@ -250,7 +272,8 @@ def anchor_table(cfg: Config, experts: list[tuple[str, str]]) -> pd.DataFrame:
                          "mean_return": anchor.mean_return,
                          "retention_norm": retention_norm(anchor.mean_return, expert,
                                                           spec.random_return())})
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=["source", "task", "expert", "tree_nodes", "tree_leaves",
+                                       "mean_return", "retention_norm"])
 
 
 def committed_bt(cfg: Config, task: str, algo: str, seeds: list[int], leaves: int | None
@@ -287,4 +310,99 @@ def front_means(table: pd.DataFrame) -> pd.DataFrame:
                      "retention_norm": iv.mean, "low": iv.low, "high": iv.high,
                      "interval": iv.label,
                      "mean_return": group["mean_return"].mean()})
+    return pd.DataFrame(rows)
+
+
+def sweep_points(tasks: list[str], algo: str, methods: list[str],
+                 leaves: dict[str, list[int]], seeds: list[int]) -> list[Point]:
+    """The paper methods at each task's leaf limits (the task's budget added: the grid run)."""
+    points = []
+    for task in tasks:
+        limits = sorted({*leaves.get(task, []), task_budget(task).max_leaf_nodes or 0} - {0})
+        points += [Point(task, algo, m, s, None if L == task_budget(task).max_leaf_nodes else L)
+                   for m in methods for L in limits for s in seeds]
+    return points
+
+
+def plus_points(experts: dict[str, list[str]], leaves: dict[str, list[int | None]],
+                seeds: list[int]) -> list[Point]:
+    """Imitation-BT+ for each task's experts at each refinement leaf limit."""
+    return [Point(task, algo, PLUS, s, L) for task, algos in experts.items() for algo in algos
+            for L in leaves.get(task, [None]) for s in seeds]
+
+
+def without_pending(points: list[Point], pending: list[list[Any]]) -> list[Point]:
+    """Drop points listed as ``[task, expert]``, ``[task, expert, method]`` or
+    ``[task, expert, method, leaves]`` (runs not computed yet)."""
+    def listed(p: Point) -> bool:
+        keys = ([p.task, p.algo], [p.task, p.algo, p.method], [p.task, p.algo, p.method, p.leaves])
+        return any(list(k) in pending for k in keys)
+
+    return [p for p in points if not listed(p)]
+
+
+@dataclass(frozen=True)
+class Target:
+    """A done-when bar of Imitation-BT+ (issue 15): retention at most this many BT nodes."""
+
+    task: str
+    experts: tuple[str, ...]
+    min_retention: float  # mean random-normalised retention over seeds, %
+    max_bt_nodes: int  # mean nodes of the committed (smallest verified) BT
+
+
+TARGETS = (
+    Target("LunarLander-v3", ("dqn", "ppo"), 90.0, 100),
+    Target("MountainCar-v0", ("dqn",), 98.0, 9),
+    Target("CartPole-v1", ("dqn", "ppo", "a2c"), 99.0, 10),
+    Target("Acrobot-v1", ("dqn", "ppo", "a2c"), 98.0, 15),
+)
+
+
+def target_table(table: pd.DataFrame, headline: dict[str, int | None]) -> pd.DataFrame:
+    """Each target beside Imitation-BT+ at the task's headline leaf limit, and the best point
+    of any leaf limit that meets the node bar (mean over seeds)."""
+    plus = table[table["method"] == PLUS]
+    rows = []
+    for target in TARGETS:
+        for algo in target.experts:
+            runs = plus[(plus["task"] == target.task) & (plus["expert"] == algo)]
+            limit = headline.get(target.task) or task_budget(target.task).max_leaf_nodes
+            at = runs[runs["max_leaf_nodes"] == limit]
+            row: dict[str, Any] = {"task": target.task, "expert": algo,
+                                   "target": f">= {target.min_retention:g} % with <= "
+                                             f"{target.max_bt_nodes} nodes",
+                                   "leaf_limit": limit, "seeds": len(at)}
+            if at.empty:
+                rows.append({**row, "verdict": "not measured"})
+                continue
+            retention, nodes = at["retention_norm"].mean(), at["bt_nodes"].mean()
+            met = retention >= target.min_retention and nodes <= target.max_bt_nodes
+            row.update({"retention_norm": retention, "retention_min": at["retention_norm"].min(),
+                        "bt_nodes": nodes, "verdict": "met" if met else "missed"})
+            means = runs.groupby("max_leaf_nodes")[["retention_norm", "bt_nodes"]].mean()
+            fits = means[means["bt_nodes"] <= target.max_bt_nodes]
+            if not fits.empty:
+                best = fits.sort_values("retention_norm").iloc[-1]
+                row.update({"best_fitting_limit": int(best.name),
+                            "best_fitting_retention": best["retention_norm"],
+                            "best_fitting_nodes": best["bt_nodes"]})
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def stage_seconds(table: pd.DataFrame) -> pd.DataFrame:
+    """CPU time per stage, summed over the front's runs (each run is one process, one core).
+
+    Imitation-BT+'s distillation (its four source runs) is counted once per task, expert and
+    seed, however many leaf limits refine it.
+    """
+    rows = []
+    for method, group in table.groupby("method", sort=False):
+        sources = group.drop_duplicates(["task", "expert", "seed"]) if method == PLUS else group
+        rows.append({"method": method, "runs": len(group),
+                     "distill_hours": sources["distill_seconds"].sum() / 3600,
+                     "refine_hours": group["refine_seconds"].sum() / 3600,
+                     "refine_episodes": int(group["refine_episodes"].sum()),
+                     "refine_steps": int(group["refine_steps"].sum())})
     return pd.DataFrame(rows)

@@ -14,7 +14,8 @@ environment's return, never on the expert's labels, with three moves that keep t
   when it beats the incumbent on the same episodes;
 * **pruning**: every split is tried fixed to either side (which removes the other subtree), and
   the best such cut is kept while it costs no return beyond a tolerance — or, when the tree has
-  more leaves than ``max_leaves``, until it is small enough.
+  more leaves than ``max_leaves``, until it is small enough (stage ``prune``; stage ``shrink``
+  only cuts down to ``max_leaves``, so that a tree is tuned before any cut that is optional).
 
 Every candidate is scored on *refinement* episodes (:data:`ibt.evaluate.REFINE_SEED_BASE`),
 disjoint from the distillation's training and selection episodes and from the final evaluation.
@@ -42,7 +43,7 @@ from ibt.evaluate import REFINE_SEED_BASE, REFINE_SELECTION_OFFSET, rollout, sel
 from ibt.tasks import Task
 from ibt.trees import TreeArrays
 
-STAGES = ("cma", "leaves", "prune")
+STAGES = ("cma", "leaves", "prune", "shrink")
 
 
 @dataclass(frozen=True)
@@ -296,14 +297,15 @@ def _leaf_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes
     return arrays, {"changes": changes, "sweeps": tried}
 
 
-def _prune_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes
-                 ) -> tuple[TreeArrays, dict]:
-    """Cut subtrees: down to ``max_leaves`` by least loss, then while a cut costs nothing."""
+def _prune_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes,
+                 optional: bool = True) -> tuple[TreeArrays, dict]:
+    """Cut subtrees: down to ``max_leaves`` by least loss, then (``optional``) while a cut
+    costs nothing."""
     forced_cuts = cuts = 0
     while True:
         arrays = arrays.simplified()
         forced = config.max_leaves is not None and arrays.n_leaves > config.max_leaves
-        if not forced and cuts >= config.sweep_rounds:
+        if not forced and (not optional or cuts >= config.sweep_rounds):
             break
         splits = np.flatnonzero(~arrays.is_leaf)
         if len(splits) == 0:
@@ -322,6 +324,9 @@ def _prune_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes
         sizes = np.array([population.member(i).simplified().n_leaves
                           for i in range(len(population))])
         order = sorted(range(1, len(population)), key=lambda i: (-means[i], sizes[i], i))
+        if forced:  # never undershoot the limit when a cut exists that does not
+            fitting = [i for i in order if sizes[i] >= config.max_leaves]
+            order = fitting or order
         best = order[0]
         candidate = population.member(best).simplified()
         if forced:
@@ -359,7 +364,7 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
         elif name == "leaves":
             current, info = _leaf_stage(current, config, episodes)
         else:
-            current, info = _prune_stage(current, config, episodes)
+            current, info = _prune_stage(current, config, episodes, optional=name == "prune")
         current = current.simplified()
         record.candidates.append(current)
         record.stages.append({"stage": name, "leaves_before": before,
