@@ -489,8 +489,8 @@ def _acting(node: Node, memo: dict[int, _Facts]) -> list[Box]:
     out: list[Box] = []
     reach: list[Box] | None = [{}]  # states that reach this child or have already acted
     for child in node.children:
-        out += [m for r in reach or () for b in _acting(child, memo)
-                if (m := _meet(r, b)) is not None]
+        acting = _acting(child, memo)
+        out += [m for r in reach or () for b in acting if (m := _meet(r, b)) is not None]
         kid = _facts(child, memo)
         if not kid.has_action:
             reach = _and(reach, _truth(child, negate=not sequence))
