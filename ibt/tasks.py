@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import csv
 import difflib
+import importlib
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
-import importlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
