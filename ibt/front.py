@@ -8,12 +8,14 @@ is verified), so a tree's final evaluation is its BT's.
 
 **Imitation-BT+** is the recipe this artifact proposes on top of the paper's method:
 
-1. distil: of the four paper methods' grid trees (the same loop in four settings, at the
-   task's leaf budget), start from the one that scored best on its held-out selection
-   episodes (on LunarLander the linear schedule of Imitation-BT loses to faster hand-overs,
-   see notebook 02, so the paper's own setting is not always the best start);
-2. refine the tree by return (:func:`ibt.refine.refine`: thresholds by CMA-ES, leaf actions,
-   pruning), on refinement episodes disjoint from selection and final ones;
+1. distil: the four paper methods' grid trees (the same loop in four settings, at the task's
+   leaf budget) are ranked by their held-out selection score (on LunarLander the linear
+   schedule of Imitation-BT loses to faster hand-overs, see notebook 02, so the paper's own
+   setting is not always the best start);
+2. refine the best :data:`REFINE_SOURCES` of them by return (:func:`ibt.refine.refine`:
+   thresholds by CMA-ES, leaf actions, pruning to a leaf limit), on refinement episodes
+   disjoint from selection and final ones, and keep the one that scores best on the
+   refinement's held-out selection episodes;
 3. synthesise every verified BT of the refined tree and keep the smallest.
 
 The four paper methods and their numbers are untouched: this module only reads their cached
@@ -48,6 +50,12 @@ FRONT_TASKS = ("CartPole-v1", "Acrobot-v1", "MountainCar-v0", "LunarLander-v3",
                "highway-fast-v0", "PackageDelivery-v0")
 
 _SMALL = ("shrink", "cma", "leaves", "prune", "cma")  # cut to the limit, tune, then prune
+
+#: How many source trees Imitation-BT+ refines per task (the best by their selection score);
+#: the refined tree that scores best on held-out episodes wins. Small trees depend on which
+#: subtree survives the cuts, and a refinement of a small task costs seconds: all four.
+REFINE_SOURCES: dict[str, int] = {"CartPole-v1": 4, "Acrobot-v1": 4, "MountainCar-v0": 4,
+                                  "PackageDelivery-v0": 4}
 
 #: Refinement budgets per task, in episodes (``RefineConfig``); tasks absent here use
 #: ``RefineConfig()``. Measured here: a CartPole episode of a good tree is 500 steps (~7 ms),
@@ -103,34 +111,25 @@ def source_run(cfg: Config, task: str, algo: str, method: str, seed: int,
     return distill_cached(cfg, task, algo, method, seed, **overrides)
 
 
-def plus_source(cfg: Config, task: str, algo: str, seed: int
-                ) -> tuple[str, Distillation, float]:
-    """Imitation-BT+'s starting tree: of the four paper methods' grid runs (the task's leaf
-    budget, this seed), the one whose chosen tree scored best on its held-out selection
-    episodes (all four use the same selection episodes; the final episodes are never looked
-    at). Ties go to the earlier method of :data:`SOURCE_METHODS`. Returns the method, its run
-    and the four runs' summed distillation seconds (the recipe's cost)."""
-    runs = {m: source_run(cfg, task, algo, m, seed, None) for m in SOURCE_METHODS}
-
-    def score(method: str) -> tuple[float, int]:
-        run = runs[method]
-        return (run.iterations[run.best_index]["selection_mean"],
-                -SOURCE_METHODS.index(method))
-
-    method = max(SOURCE_METHODS, key=score)
-    return method, runs[method], sum(r.wall_seconds for r in runs.values())
+def ranked_sources(cfg: Config, task: str, algo: str, seed: int
+                   ) -> list[tuple[str, Distillation]]:
+    """The four paper methods' grid runs (the task's leaf budget, this seed), best first by
+    the held-out selection score of their chosen tree (all four use the same selection
+    episodes; the final episodes are never looked at). Ties keep :data:`SOURCE_METHODS`
+    order."""
+    runs = [(m, source_run(cfg, task, algo, m, seed, None)) for m in SOURCE_METHODS]
+    return sorted(runs, key=lambda mr: -mr[1].iterations[mr[1].best_index]["selection_mean"])
 
 
-def refine_cached(cfg: Config, task: str, algo: str, seed: int, *, max_leaves: int | None,
-                  config: RefineConfig | None = None) -> Refinement:
-    """Refine Imitation-BT+'s source tree of one seed, pruned to ``max_leaves`` (cached).
+def refine_cached(cfg: Config, task: str, algo: str, seed: int, source_method: str, *,
+                  max_leaves: int | None, config: RefineConfig | None = None) -> Refinement:
+    """Refine one source run's tree, pruned to ``max_leaves`` (cached on tree and settings).
 
     ``max_leaves`` None refines without forcing the tree smaller.
     """
     spec = get_task(task)
     config = config or refine_config(cfg, spec, max_leaves=max_leaves)
-    source_method, run, _ = plus_source(cfg, spec.name, algo, seed)
-    tree = run.best_tree
+    tree = source_run(cfg, spec.name, algo, source_method, seed, None).best_tree
     params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": source_method,
               "tree": tree_digest(tree), "config": config.as_params()}
 
@@ -139,6 +138,36 @@ def refine_cached(cfg: Config, task: str, algo: str, seed: int, *, max_leaves: i
 
     return load_or_compute("refine", params, compute, cache_dir=cfg.cache_dir,
                            refresh=cfg.refresh)
+
+
+@dataclass(frozen=True)
+class PlusResult:
+    """Imitation-BT+ for one task, expert, seed and leaf limit, with what it cost."""
+
+    source_method: str
+    refinement: Refinement  # the chosen source's
+    distill_seconds: float  # the four source runs
+    refine_seconds: float  # every source refined
+    refine_episodes: int
+    refine_steps: int
+
+    @property
+    def tree(self) -> Any:
+        return self.refinement.best_tree
+
+
+def plus_run(cfg: Config, task: str, algo: str, seed: int, max_leaves: int | None
+             ) -> PlusResult:
+    """Imitation-BT+: refine the ``REFINE_SOURCES[task]`` best source trees (by their held-out
+    selection score) and keep the refined tree that scores best on the refinement's held-out
+    selection episodes (the same episodes for every source)."""
+    ranked = ranked_sources(cfg, task, algo, seed)
+    refined = [(m, refine_cached(cfg, task, algo, seed, m, max_leaves=max_leaves))
+               for m, _ in ranked[:REFINE_SOURCES.get(get_task(task).name, 1)]]
+    method, chosen = max(refined, key=lambda mr: mr[1].selection_means[mr[1].best_index])
+    return PlusResult(method, chosen, sum(run.wall_seconds for _, run in ranked),
+                      sum(r.wall_seconds for _, r in refined),
+                      sum(r.episodes for _, r in refined), sum(r.steps for _, r in refined))
 
 
 def synthesise(tree: Any, task: Task, method: str) -> BehaviorTree:
@@ -205,15 +234,14 @@ class Point:
 def point_row(cfg: Config, point: Point) -> dict[str, Any]:
     """One row of ``data/results/front.csv`` (every heavy step cached)."""
     spec = get_task(point.task)
-    plus = point.method == PLUS
-    if plus:
-        source_method, run, distill_seconds = plus_source(cfg, spec.name, point.algo,
-                                                          point.seed)
+    if point.method == PLUS:
+        result = plus_run(cfg, spec.name, point.algo, point.seed, point.leaves)
+        source_method, distill_seconds, tree = (result.source_method, result.distill_seconds,
+                                                result.tree)
     else:
         source_method = point.method
         run = source_run(cfg, spec.name, point.algo, point.method, point.seed, point.leaves)
-        distill_seconds = run.wall_seconds
-    tree = run.best_tree
+        distill_seconds, tree = run.wall_seconds, run.best_tree
     row: dict[str, Any] = {"task": spec.name, "expert": point.algo, "method": point.method,
                            "seed": point.seed,
                            "max_leaf_nodes": point.leaves or task_budget(spec).max_leaf_nodes,
@@ -221,10 +249,10 @@ def point_row(cfg: Config, point: Point) -> dict[str, Any]:
                            "distill_seconds": round(distill_seconds, 2),
                            "refine_episodes": 0, "refine_steps": 0, "refine_seconds": 0.0}
     if point.method == PLUS:
-        record = refine_cached(cfg, spec.name, point.algo, point.seed, max_leaves=point.leaves)
-        tree = record.best_tree
-        row.update({"refine_episodes": record.episodes, "refine_steps": record.steps,
-                    "refine_seconds": round(record.wall_seconds, 2),
+        record = result.refinement
+        row.update({"refine_episodes": result.refine_episodes,
+                    "refine_steps": result.refine_steps,
+                    "refine_seconds": round(result.refine_seconds, 2),
                     "refine_stage": (["source"] + [s["stage"] for s in record.stages])[
                         record.best_index]})
     sizes = bt_sizes(cfg, spec.name, tree)
@@ -285,8 +313,7 @@ def committed_bt(cfg: Config, task: str, algo: str, seeds: list[int], leaves: in
     """
     rows = [point_row(cfg, Point(task, algo, PLUS, s, leaves)) for s in seeds]
     best = max(rows, key=lambda r: (r["mean_return"], -r["bt_nodes"], -r["seed"]))
-    record = refine_cached(cfg, task, algo, int(best["seed"]), max_leaves=leaves)
-    sizes = bt_sizes(cfg, task, record.best_tree)
+    sizes = bt_sizes(cfg, task, plus_run(cfg, task, algo, int(best["seed"]), leaves).tree)
     bt = BehaviorTree.from_dict(sizes["bt"])
     rollout = evaluate_bt(cfg, task, bt)
     return {"bt": bt, "seed": int(best["seed"]), "mean_return": rollout["mean_return"],

@@ -323,10 +323,13 @@ def _prune_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes,
         means = episodes.score(population, episodes.fresh(k)).mean(axis=1)
         sizes = np.array([population.member(i).simplified().n_leaves
                           for i in range(len(population))])
-        order = sorted(range(1, len(population)), key=lambda i: (-means[i], sizes[i], i))
-        if forced:  # never undershoot the limit when a cut exists that does not
+        if forced:  # the least harmful cut, removing as little as possible on ties, and
+            # never one that undershoots the limit when another does not
+            order = sorted(range(1, len(population)), key=lambda i: (-means[i], -sizes[i], i))
             fitting = [i for i in order if sizes[i] >= config.max_leaves]
             order = fitting or order
+        else:  # a free cut: the best, the smallest on ties
+            order = sorted(range(1, len(population)), key=lambda i: (-means[i], sizes[i], i))
         best = order[0]
         candidate = population.member(best).simplified()
         if forced:

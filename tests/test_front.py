@@ -1,0 +1,79 @@
+"""The size-retention front and Imitation-BT+: points, targets, costs, anchors."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+import ibt
+from ibt import front
+from ibt.distill import task_budget
+from ibt.evaluate import retention_norm
+
+
+def test_sweep_points_add_the_grid_budget_and_mark_it_as_the_grid_run():
+    points = front.sweep_points(["CartPole-v1"], "dqn", ["bc"], {"CartPole-v1": [3, 12]}, [0])
+    budget = task_budget("CartPole-v1").max_leaf_nodes
+    assert [p.leaves for p in points] == [3, None]  # 12 is the budget: the grid run itself
+    assert budget == 12
+
+
+def test_plus_points_and_pending():
+    points = front.plus_points({"CartPole-v1": ["dqn", "ppo"]}, {"CartPole-v1": [2, None]}, [0, 1])
+    assert len(points) == 8 and {p.method for p in points} == {front.PLUS}
+    left = front.without_pending(points, [["CartPole-v1", "ppo"],
+                                          ["CartPole-v1", "dqn", front.PLUS, 2]])
+    assert {(p.algo, p.leaves) for p in left} == {("dqn", None)}
+
+
+def _rows(task: str, algo: str, leaves: int, retention: list[float], nodes: list[int]
+          ) -> list[dict]:
+    return [{"task": task, "expert": algo, "method": front.PLUS, "seed": s,
+             "max_leaf_nodes": leaves, "retention_norm": r, "bt_nodes": n,
+             "distill_seconds": 10.0, "refine_seconds": 5.0, "refine_episodes": 100,
+             "refine_steps": 1000}
+            for s, (r, n) in enumerate(zip(retention, nodes, strict=True))]
+
+
+def test_target_table_verdicts():
+    # Expect: met when both bars hold on the means; missed otherwise; absent -> not measured
+    table = pd.DataFrame(
+        _rows("MountainCar-v0", "dqn", 4, [99.0, 98.5, 97.0], [9, 9, 9])       # mean 98.2
+        + _rows("MountainCar-v0", "dqn", 5, [99.5, 99.5, 99.5], [11, 11, 11])  # too big
+        + _rows("CartPole-v1", "dqn", 3, [100.0, 100.0, 38.0], [6, 6, 5]))     # mean 79.3
+    out = front.target_table(table, {"MountainCar-v0": 4, "CartPole-v1": 3})
+    verdict = {(r.task, r.expert): r.verdict for r in out.itertuples()}
+    assert verdict[("MountainCar-v0", "dqn")] == "met"
+    assert verdict[("CartPole-v1", "dqn")] == "missed"
+    assert verdict[("CartPole-v1", "ppo")] == "not measured"
+    assert verdict[("LunarLander-v3", "dqn")] == "not measured"
+    mc = out[(out.task == "MountainCar-v0")].iloc[0]
+    assert mc.best_fitting_limit == 4  # the 5-leaf BTs break the 9-node bar
+
+
+def test_stage_seconds_count_a_plus_distillation_once_per_seed():
+    table = pd.DataFrame(_rows("CartPole-v1", "dqn", 2, [99.0], [5])
+                         + _rows("CartPole-v1", "dqn", 3, [99.0], [6]))
+    cost = front.stage_seconds(table).iloc[0]
+    assert cost.runs == 2
+    assert cost.distill_hours == pytest.approx(10.0 / 3600)  # one seed, two leaf limits
+    assert cost.refine_hours == pytest.approx(10.0 / 3600)
+
+
+def test_anchors_are_converted_with_our_expert_and_random_returns(monkeypatch):
+    monkeypatch.setattr(front, "expert_evaluation",
+                        lambda cfg, task, algo: {"mean_return": 250.0})
+    table = front.anchor_table(ibt.config("smoke"), [("LunarLander-v3", "dqn"),
+                                                      ("CartPole-v1", "dqn")])
+    assert list(table.task) == ["LunarLander-v3"]  # no published anchor for CartPole
+    random_return = ibt.get_task("LunarLander-v3").random_return()
+    assert table.retention_norm.iloc[0] == pytest.approx(
+        retention_norm(240.6, 250.0, random_return))
+    assert front.anchor_table(ibt.config("smoke"), []).columns.tolist()[:2] == ["source", "task"]
+
+
+def test_smoke_refinement_budget_is_tiny_and_keeps_the_task_stages():
+    cfg = ibt.config("smoke")
+    config = front.refine_config(cfg, "CartPole-v1", max_leaves=3)
+    assert config.episodes <= 240 and config.max_leaves == 3
+    assert config.stages == front.REFINE_BUDGETS["CartPole-v1"].stages
