@@ -37,7 +37,7 @@ from ibt.tasks import Task
 EXPORT_FORMATS = ("json", "dot", "svg", "png", "btcpp-xml")
 EXPORT_SUFFIXES = {"json": (".json",), "dot": (".dot", ".gv"), "svg": (".svg",),
                    "png": (".png",), "btcpp-xml": (".xml",)}
-SYNTHESIS_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso")
+SYNTHESIS_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso", "decision-list")
 TREE_FORMAT = "ibt-tree/1"
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -292,6 +292,10 @@ def _synthesize(args: argparse.Namespace) -> int:
         if args.method == "imitation-bt":
             result = imitation_bt(doc["tree"], task, default_strategy=args.default_strategy,
                                   dont_cares=args.dont_cares)
+        elif args.method == "decision-list":  # beyond the paper: the smallest verified BT
+            from ibt.decision_list import decision_list_bt
+
+            result = decision_list_bt(doc["tree"], task)
         else:
             from ibt import baselines
 

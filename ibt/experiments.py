@@ -10,6 +10,7 @@ seed, so where it runs never changes its row.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -217,7 +218,7 @@ def seed_best(results: pd.DataFrame, task: str, algo: str, method: str) -> int:
     return int(best.iloc[0]["seed"])
 
 
-BT_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso")
+BT_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso", "decision-list")
 
 
 def _synthesize(tree: Any, spec: Any, method: str) -> Any:
@@ -230,6 +231,10 @@ def _synthesize(tree: Any, spec: Any, method: str) -> Any:
         return bt_espresso(tree, spec)
     if method == "re-bt-espresso":
         return re_bt_espresso(tree, spec)
+    if method == "decision-list":  # beyond the paper: ibt.decision_list
+        from ibt.decision_list import decision_list_bt
+
+        return decision_list_bt(tree, spec)
     raise ValueError(f"unknown BT method {method!r}; choose from {', '.join(BT_METHODS)}")
 
 
@@ -246,9 +251,15 @@ def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
     tree = distill_cached(cfg, spec.name, algo, source_method, seed, **overrides).best_tree
     params = {"task": spec.name, "algo": algo, "method": method, "seed": seed,
               "source_method": source_method, "tree": tree_digest(tree)}
+    if method == "decision-list":  # its own version: a changed search re-keys only its BTs
+        from ibt.decision_list import VERSION
+
+        params["method_version"] = VERSION
 
     def compute() -> dict[str, Any]:
+        started = time.process_time()
         result = _synthesize(tree, spec, method)
+        seconds = time.process_time() - started
         checked = verify(result.bt, tree, spec)
         types = result.bt.node_types()
         row = {"task": spec.name, "expert": algo, "method": method, "seed": seed,
@@ -259,6 +270,10 @@ def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
                                   if result.default_action is not None else ""),
                "default_strategy": result.default_strategy or "",
                "equivalent": True, "states_checked": checked}
+        if method == "decision-list":  # what the search tried and what it cost
+            row.update({"search_winner": result.search["winner"],
+                        "search_work": result.search["work"],
+                        "synthesis_cpu_seconds": round(seconds, 3)})
         if method == "imitation-bt":
             for strategy in DEFAULT_STRATEGIES:
                 row[f"nodes_{strategy}"] = imitation_bt(
@@ -308,7 +323,8 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
                     ) -> pd.DataFrame:
     """``data/results/synthesis.csv``: one BT per (task, expert, BT method, source seed).
 
-    Imitation-BT is synthesised from each Imitation-BT run's best tree; BT-Espresso and
+    Imitation-BT (and the decision-list BT, beyond the paper: :mod:`ibt.decision_list`) is
+    synthesised from each Imitation-BT run's best tree; BT-Espresso and
     RE:BT-Espresso from each ``baseline_source`` run's tree (offline demonstrations, as in
     their papers). Every BT is verified to decide exactly as its tree, so its episodes are the
     tree's: performance columns come from the tree's final evaluation (``evaluated`` says
@@ -318,7 +334,7 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
     from ibt.pipeline import save_tree
 
     sources = {"imitation-bt": "imitation-bt", "bt-espresso": baseline_source,
-               "re-bt-espresso": baseline_source}
+               "re-bt-espresso": baseline_source, "decision-list": "imitation-bt"}
     pairs = list(results[["task", "expert"]].drop_duplicates().itertuples(index=False))
     statuses = expert_statuses()
     rows = []
@@ -336,6 +352,7 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
             for source_row in runs.itertuples(index=False):
                 made = synthesize_run(cfg, task, algo, method, int(source_row.seed), source)
                 row = {**made["row"], "seed_best": int(source_row.seed) == best_seed}
+                row["tree_splits"] = (int(row["tree_nodes"]) - 1) // 2  # binary: 2 s + 1 nodes
                 perf = {"mean_return": source_row.mean_return,
                         "std_return": source_row.std_return}
                 row["evaluated"] = "source tree (verified equivalent)"

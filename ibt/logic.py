@@ -9,6 +9,8 @@ refinements, both exact on every real state:
 * **implication don't-cares** (beyond the paper): for thresholds ``t1 < t2`` on one feature,
   ``x <= t1`` true with ``x <= t2`` false cannot happen; telling Espresso so lets it merge cubes
   across implied literals.
+* **extra don't-care terms** (beyond the paper, for :mod:`ibt.decision_list`): states an
+  earlier rule of a decision list already decided, or states outside a subtree's region.
 
 This is the only module that imports pyeda. Espresso on covers read off decision trees runs in
 milliseconds; large covers run in a child process with a time limit and fall back to the
@@ -89,13 +91,18 @@ def _espresso_child(conn, ninputs, on, dc) -> None:
 
 
 def espresso_cubes(ninputs: int, on: list[tuple[int, ...]], dc: list[tuple[int, ...]],
-                   timeout: float = 30.0) -> list[tuple[int, ...]] | None:
-    """Minimise an ON cover with optional don't-cares; ``None`` if Espresso ran out of time."""
+                   timeout: float = 30.0, in_process_limit: int = IN_PROCESS_LIMIT
+                   ) -> list[tuple[int, ...]] | None:
+    """Minimise an ON cover with optional don't-cares; ``None`` if Espresso ran out of time.
+
+    Covers of up to ``in_process_limit`` cubes x variables run in this process (no time
+    limit: forking costs more than they take); larger ones in a child with ``timeout``.
+    """
     if not on:
         return []
     if ninputs == 0:
         return [()]
-    if (len(on) + len(dc)) * ninputs <= IN_PROCESS_LIMIT:
+    if (len(on) + len(dc)) * ninputs <= in_process_limit:
         return _run_espresso(ninputs, on, dc)
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
@@ -112,18 +119,26 @@ def espresso_cubes(ninputs: int, on: list[tuple[int, ...]], dc: list[tuple[int, 
 
 
 def minimise(terms: list[Term], variables: Variables, *, dont_cares: bool = False,
-             merge: bool = True, timeout: float = 30.0) -> list[Term]:
+             merge: bool = True, timeout: float = 30.0,
+             extra_dont_cares: Iterable[Term] = (),
+             in_process_limit: int = IN_PROCESS_LIMIT) -> list[Term]:
     """Espresso-minimised DNF equivalent to ``terms`` on every real state.
 
-    ``variables`` must cover every literal of ``terms`` (build it from the whole ATL so all
-    actions share one variable order). Terms come back with merged thresholds (when ``merge``)
-    and sorted by literal count, then lexicographically, so the result is deterministic.
+    ``variables`` must cover every literal of ``terms`` and of ``extra_dont_cares`` (build it
+    from the whole ATL so all actions share one variable order). ``extra_dont_cares`` are
+    terms whose states the caller never asks about (in a decision list: the states an earlier
+    rule already caught, or states outside the region being synthesised); the result may
+    cover them or not. The result is then equivalent to ``terms`` only outside them. Terms come
+    back with merged thresholds (when ``merge``) and sorted by literal count, then
+    lexicographically, so the result is deterministic.
     """
     if not terms:
         return []
     on = [variables.cube(t) for t in terms]
     dc = variables.implication_dont_cares() if dont_cares else []
-    cubes = espresso_cubes(len(variables), on, dc, timeout=timeout)
+    dc += [variables.cube(t) for t in extra_dont_cares]
+    cubes = espresso_cubes(len(variables), on, dc, timeout=timeout,
+                           in_process_limit=in_process_limit)
     if cubes is None:
         warnings.warn(f"Espresso exceeded {timeout:.0f} s on {len(on)} cubes over "
                       f"{len(variables)} variables; keeping the unminimised cover", stacklevel=2)

@@ -22,7 +22,8 @@ a BT that disagrees with its source tree.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -53,13 +54,15 @@ class RuleSet:
 
 @dataclass(frozen=True)
 class Synthesis:
-    """A synthesised BT with how it was made."""
+    """A synthesised BT with how it was made (``search``: what a searching synthesiser tried,
+    e.g. :func:`ibt.decision_list.decision_list_bt`'s candidates and work)."""
 
     bt: BehaviorTree
     method: str
     default_action: int | None
     default_strategy: str | None
     rule_sets: tuple[RuleSet, ...]
+    search: dict[str, Any] = field(default_factory=dict)
 
 
 def minimised_rule_sets(tree: DecisionTreeClassifier, *, dont_cares: bool = False

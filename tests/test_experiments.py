@@ -67,10 +67,12 @@ def test_synthesize_grid_verifies_every_bt_and_rolls_out_the_seed_best(tmp_path)
     cells = grid(["FrozenLake-v1"], ["dqn"], ["bc", "imitation-bt"], [0, 1])
     results = run_grid(cfg, cells, n_jobs=1)
     synthesis = synthesize_grid(cfg, results)
-    assert sorted(synthesis.method.unique()) == ["bt-espresso", "imitation-bt", "re-bt-espresso"]
-    assert len(synthesis) == 6 and (synthesis.states_checked > 0).all()
+    assert sorted(synthesis.method.unique()) == ["bt-espresso", "decision-list", "imitation-bt",
+                                                 "re-bt-espresso"]
+    assert len(synthesis) == 8 and (synthesis.states_checked > 0).all()
+    assert (synthesis.tree_splits == (synthesis.tree_nodes - 1) // 2).all()
     best = synthesis[synthesis.seed_best]
-    assert len(best) == 3 and best.matches_tree.all()
+    assert len(best) == 4 and best.matches_tree.all()
     assert (best.evaluated == "BT rollout").all()
     # every written BT decides exactly as the tree it came from (checked here, not read from
     # the table's `equivalent` column, which holds True whenever a row exists)
@@ -88,6 +90,7 @@ def test_synthesize_grid_verifies_every_bt_and_rolls_out_the_seed_best(tmp_path)
     assert set(retention_table(results, synthesis).method) == {
         "bc", "imitation-bt", "bt-espresso", "re-bt-espresso"}
     nodes = node_table(results, synthesis)
-    assert set(nodes.method) == {"bc", "imitation-bt", "bt-espresso", "re-bt-espresso"}
+    assert set(nodes.method) == {"bc", "imitation-bt", "bt-espresso", "re-bt-espresso",
+                                 "decision-list"}
     again = synthesize_grid(cfg, results)  # cached: identical
     pd.testing.assert_frame_equal(synthesis, again)
