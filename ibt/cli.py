@@ -2,6 +2,7 @@
 
     python -m ibt train CartPole-v1 --algo ppo           # train + record committed experts
     python -m ibt distill CartPole-v1 ppo -o tree.joblib  # expert -> decision tree
+    python -m ibt refine tree.joblib -o small.joblib --max-leaves 3  # raise its return
     python -m ibt synthesize tree.joblib -o bt.json       # decision tree -> behavior tree
     python -m ibt evaluate bt.json --task CartPole-v1     # returns of a BT, tree or expert
     python -m ibt export bt.json --format btcpp-xml -o bt.xml
@@ -281,6 +282,32 @@ def _distill(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refine(args: argparse.Namespace) -> int:
+    from ibt.refine import refine, task_config
+
+    out = check_output(args.output, (".joblib",))
+    doc = load_tree_file(args.tree)
+    task = _tree_task(doc, args.tree, args)
+    overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
+    if args.episodes is not None:
+        overrides["episodes"] = args.episodes
+    config = task_config(task.name, **overrides)
+    record = refine(doc["tree"], task, config, seed=args.seed, progress=not args.quiet)
+    tree = record.best_tree
+    info = {k: v for k, v in doc.items() if k in ("algo", "method", "seed")}
+    save_tree_file(out, tree, task, {**info, "refined_from": str(args.tree),
+                                     "refinement": {"stages": record.stages,
+                                                    "selection_means": record.selection_means,
+                                                    "best_index": record.best_index,
+                                                    "config": record.config},
+                                     "env_modules": args.env_module})
+    before, after = record.selection_means[0], record.selection_means[record.best_index]
+    print(f"{task.name}: {record.candidates[0].n_leaves} -> {record.best.n_leaves} leaves, "
+          f"held-out return {before:.2f} -> {after:.2f} ({record.episodes} refinement "
+          f"episodes, {record.cpu_seconds:.0f} s CPU); written to {out}")
+    return 0
+
+
 def _synthesize(args: argparse.Namespace) -> int:
     from ibt.export import save_json
     from ibt.synthesis import NotEquivalentError, imitation_bt
@@ -470,6 +497,19 @@ def build_parser() -> argparse.ArgumentParser:
                       f"ibt.distill.TASK_BUDGETS; {DEFAULT_MAX_LEAF_NODES} for other tasks)")
     dist.add_argument("--quiet", action="store_true", help="no progress bar")
     dist.set_defaults(func=_distill)
+
+    ref = command("refine", help="raise a decision tree's return by refinement (thresholds "
+                  "by CMA-ES, leaf actions, pruning), optionally to a leaf limit")
+    ref.add_argument("tree", help="decision-tree file from `distill` (or `refine`)")
+    ref.add_argument("-o", "--output", required=True, help="refined decision-tree file (.joblib)")
+    ref.add_argument("--max-leaves", type=POSITIVE, default=None,
+                     help="prune to at most this many leaves (default: no forced pruning)")
+    ref.add_argument("--episodes", type=POSITIVE, default=None,
+                     help="refinement budget in episodes (default: the task's, "
+                     "ibt.refine.REFINE_BUDGETS; 20,000 for other tasks)")
+    ref.add_argument("--seed", type=SEED, default=0)
+    ref.add_argument("--quiet", action="store_true", help="no progress bar")
+    ref.set_defaults(func=_refine)
 
     syn = command("synthesize", help="turn a decision tree into a verified BT (JSON)")
     syn.add_argument("tree", help="decision-tree file from `distill`")

@@ -40,7 +40,7 @@ from ibt.distill import Distillation, task_budget
 from ibt.evaluate import retention_norm, retention_raw
 from ibt.experiments import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.pipeline import distill_cached
-from ibt.refine import RefineConfig, Refinement, refine
+from ibt.refine import REFINE_SOURCES, RefineConfig, Refinement, refine
 from ibt.tasks import Task, get_task
 
 PLUS = "imitation-bt+"
@@ -48,27 +48,6 @@ SOURCE_METHODS = ("bc", "dagger", "viper", "imitation-bt")
 SYNTHESISERS = ("imitation-bt", "decision-list")
 FRONT_TASKS = ("CartPole-v1", "Acrobot-v1", "MountainCar-v0", "LunarLander-v3",
                "highway-fast-v0", "PackageDelivery-v0")
-
-_SMALL = ("shrink", "cma", "leaves", "prune", "cma")  # cut to the limit, tune, then prune
-
-#: How many source trees Imitation-BT+ refines per task (the best by their selection score);
-#: the refined tree that scores best on held-out episodes wins. Small trees depend on which
-#: subtree survives the cuts, and a refinement of a small task costs seconds: all four.
-REFINE_SOURCES: dict[str, int] = {"CartPole-v1": 4, "Acrobot-v1": 4, "MountainCar-v0": 4,
-                                  "PackageDelivery-v0": 4}
-
-#: Refinement budgets per task, in episodes (``RefineConfig``); tasks absent here use
-#: ``RefineConfig()``. Measured here: a CartPole episode of a good tree is 500 steps (~7 ms),
-#: Acrobot ~90 steps, MountainCar ~120, PackageDelivery 200 (~2 ms), LunarLander ~300-1000.
-REFINE_BUDGETS: dict[str, RefineConfig] = {
-    "CartPole-v1": RefineConfig(stages=_SMALL, episodes=8_000, cma_episodes=8,
-                                sweep_episodes=20),
-    "Acrobot-v1": RefineConfig(stages=_SMALL, episodes=8_000, cma_episodes=8,
-                               sweep_episodes=20),
-    "MountainCar-v0": RefineConfig(stages=_SMALL, episodes=10_000),
-    "PackageDelivery-v0": RefineConfig(stages=_SMALL, episodes=10_000),
-}
-
 
 @dataclass(frozen=True)
 class Anchor:
@@ -93,14 +72,16 @@ ANCHORS = (
 
 
 def refine_config(cfg: Config, task: str | Task, **overrides: Any) -> RefineConfig:
-    """The task's refinement budget, shrunk to seconds under the ``smoke`` profile."""
-    name = get_task(task).name
-    base = REFINE_BUDGETS.get(name, RefineConfig())
+    """The task's refinement budget (:func:`ibt.refine.task_config`), shrunk to seconds under
+    the ``smoke`` profile."""
+    from ibt.refine import task_config
+
+    config = task_config(get_task(task).name, **overrides)
     if cfg.profile == "smoke":
-        base = replace(base, episodes=min(base.episodes, 240), cma_generations=2,
-                       cma_episodes=2, cma_popsize=4, sweep_episodes=2, sweep_rounds=1,
-                       selection_episodes=3, n_envs=8)
-    return replace(base, **overrides)
+        config = replace(config, episodes=min(config.episodes, 240), cma_generations=2,
+                         cma_episodes=2, cma_popsize=4, sweep_episodes=2, sweep_rounds=1,
+                         selection_episodes=3, n_envs=8)
+    return config
 
 
 def source_run(cfg: Config, task: str, algo: str, method: str, seed: int,
@@ -147,7 +128,7 @@ class PlusResult:
     source_method: str
     refinement: Refinement  # the chosen source's
     distill_seconds: float  # the four source runs
-    refine_seconds: float  # every source refined
+    refine_seconds: float  # every source refined: CPU seconds (one process, one core)
     refine_episodes: int
     refine_steps: int
 
@@ -166,7 +147,7 @@ def plus_run(cfg: Config, task: str, algo: str, seed: int, max_leaves: int | Non
                for m, _ in ranked[:REFINE_SOURCES.get(get_task(task).name, 1)]]
     method, chosen = max(refined, key=lambda mr: mr[1].selection_means[mr[1].best_index])
     return PlusResult(method, chosen, sum(run.wall_seconds for _, run in ranked),
-                      sum(r.wall_seconds for _, r in refined),
+                      sum(r.cpu_seconds for _, r in refined),
                       sum(r.episodes for _, r in refined), sum(r.steps for _, r in refined))
 
 

@@ -9,6 +9,7 @@ import ibt
 from ibt import front
 from ibt.distill import task_budget
 from ibt.evaluate import retention_norm
+from ibt.refine import REFINE_BUDGETS
 
 
 def test_sweep_points_add_the_grid_budget_and_mark_it_as_the_grid_run():
@@ -76,4 +77,4 @@ def test_smoke_refinement_budget_is_tiny_and_keeps_the_task_stages():
     cfg = ibt.config("smoke")
     config = front.refine_config(cfg, "CartPole-v1", max_leaves=3)
     assert config.episodes <= 240 and config.max_leaves == 3
-    assert config.stages == front.REFINE_BUDGETS["CartPole-v1"].stages
+    assert config.stages == REFINE_BUDGETS["CartPole-v1"].stages

@@ -119,3 +119,20 @@ def test_refinement_seeds_are_disjoint_from_selection_and_final_ones():
 def test_bad_refine_configs_are_refused(bad):
     with pytest.raises(ValueError):
         RefineConfig(**bad)
+
+
+def test_cli_refines_a_tree_file_to_a_leaf_limit(tmp_path, capsys):
+    from ibt.cli import load_tree_file, main, save_tree_file
+
+    source = save_tree_file(tmp_path / "tree.joblib", _cartpole_tree(), "CartPole-v1",
+                            {"algo": "dqn"})
+    out = tmp_path / "small.joblib"
+    assert main(["refine", str(source), "-o", str(out), "--max-leaves", "2",
+                 "--episodes", "300", "--quiet"]) == 0
+    doc = load_tree_file(out)
+    assert doc["tree"].get_n_leaves() <= 2 and doc["refined_from"] == str(source)
+    assert "2 leaves" in capsys.readouterr().out or doc["tree"].get_n_leaves() == 1
+    # a bad budget is refused before any work, and nothing is written
+    again = tmp_path / "again.joblib"
+    assert main(["refine", str(source), "-o", str(again), "--episodes", "0"]) == 2
+    assert not again.exists()
