@@ -48,7 +48,7 @@ CODE_VERSIONS: dict[str, int] = {
     "tree-eval": 1,  # ibt.experiments.evaluate_tree
     "bt-eval": 1,  # ibt.experiments.evaluate_bt
     "synthesis": 1,  # ibt.experiments.synthesize_run: synthesis, verification, the row
-    "refine": 2,  # ibt.front.refine_cached: ibt.refine.refine of a distilled tree
+    "refine": 3,  # ibt.front.refine_cached: ibt.refine.refine of a distilled tree
     "front-bt": 1,  # ibt.front.bt_sizes: every synthesiser's verified BT of one tree
     "executors": 1,  # ibt.experiments.executors_agree
 }
