@@ -15,6 +15,7 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 from ibt import envs  # noqa: F401  (registers PackageDelivery-v0)
 from ibt.bt import BehaviorTree, tick
 from ibt.config import config
+from ibt.decision_list import decision_list_bt
 from ibt.distill import METHODS, DistillConfig, distill
 from ibt.experts import load_expert
 from ibt.export import load_json, save_drawing, save_json, to_graphviz
@@ -27,7 +28,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "METHODS", "BTPolicy", "BehaviorTree", "DistillConfig", "TreePolicy", "compare_policies",
-    "config", "distill", "distill_cached", "get_task", "imitation_bt", "iterations_frame",
-    "load_expert", "load_json", "register_task", "save_drawing", "save_json", "save_tree", "tick",
-    "to_graphviz", "verify",
+    "config", "decision_list_bt", "distill", "distill_cached", "get_task", "imitation_bt",
+    "iterations_frame", "load_expert", "load_json", "register_task", "save_drawing", "save_json",
+    "save_tree", "tick", "to_graphviz", "verify",
 ]

@@ -659,13 +659,13 @@ def size_table(synthesis: pd.DataFrame) -> pd.DataFrame:
         "Imitation-BT conditions": wide[("conditions", "imitation-bt")],
         "decision-list nodes": wide[("nodes", METHOD)],
         "decision-list conditions": wide[("conditions", METHOD)]}).dropna()
-    order = list(dict.fromkeys(synthesis["task"]))
-    table = per_seed.groupby(["task", "expert"], sort=False).mean()
-    table.insert(0, "seeds", per_seed.groupby(["task", "expert"], sort=False).size())
+    table = per_seed.groupby(["task", "expert"]).mean()
+    table.insert(0, "seeds", per_seed.groupby(["task", "expert"]).size())
     table = table.reset_index()
-    table["task"] = pd.Categorical(table["task"], order, ordered=True)
-    table = table.sort_values(["task"], kind="stable").reset_index(drop=True)
-    table["task"] = table["task"].astype(str)
+    first = {c: {v: i for i, v in enumerate(dict.fromkeys(synthesis[c]))}
+             for c in ("task", "expert")}
+    table = table.sort_values(["task", "expert"], key=lambda col: col.map(first[col.name]),
+                              kind="stable").reset_index(drop=True)  # the results' order
     table["conditions / splits"] = (table["decision-list conditions"]
                                     / table["tree splits"].where(table["tree splits"] > 0))
     table["nodes / Imitation-BT"] = (table["decision-list nodes"]

@@ -224,3 +224,52 @@ def test_cli_synthesizes_a_decision_list_bt(tmp_path, capsys):
     bt = ibt.load_json(out)
     assert verify(bt, tree, task) > 0
     assert bt.node_count <= imitation_bt(tree, task).bt.node_count
+
+
+def _tick_document(node: dict, x: np.ndarray, decided: list[int]) -> bool:
+    """The README's ticking rule, on the JSON document alone (no ibt.bt): a condition compares
+    float64(float32(obs[feature])); the first action ticked is the decision."""
+    kind = node["type"]
+    if kind == "condition":
+        value = float(np.float32(x[node["feature"]]))
+        return value <= node["threshold"] if node["op"] == "<=" else value > node["threshold"]
+    if kind == "action":
+        if not decided:
+            decided.append(node["action"])
+        return True
+    if kind == "inverter":
+        return not _tick_document(node["children"][0], x, decided)
+    if kind == "sequence":
+        return all(_tick_document(child, x, decided) for child in node["children"])
+    return any(_tick_document(child, x, decided) for child in node["children"])
+
+
+def test_committed_decision_list_files_decide_as_their_trees():
+    """Every data/trees/<task>/<algo>/decision-list.json, ticked from the file alone, decides as
+    its source tree (the seed-best Imitation-BT tree), and its environment rollout returned
+    what the tree returned (the synthesis table's matches_tree)."""
+    import json
+
+    import ibt
+    from ibt.paths import DATA_DIR
+    from ibt.synthesis import verification_states
+
+    synthesis = pd.read_csv(DATA_DIR / "results" / "synthesis.csv")
+    rows = synthesis[(synthesis.method == METHOD) & synthesis.seed_best]
+    assert len(rows) and rows.equivalent.all() and rows.matches_tree.all()
+    cfg = ibt.config("paper", progress=False)
+    for row in rows.itertuples():
+        path = DATA_DIR / "trees" / row.task / row.expert / f"{METHOD}.json"
+        doc = json.loads(path.read_text())
+        task = ibt.get_task(row.task)
+        tree = ibt.distill_cached(cfg, row.task, row.expert, "imitation-bt", int(row.seed)
+                                  ).best_tree
+        states = verification_states(tree, task, n_random=500)
+        decisions = []
+        for x in states:
+            decided: list[int] = []
+            _tick_document(doc["root"], x, decided)
+            decisions.append(decided[0] if decided else -1)
+        assert np.array_equal(decisions, tree.predict(states)), path
+        assert doc["root"]["type"] == "selector"
+        assert ibt.BehaviorTree.from_dict(doc).node_count == row.nodes
