@@ -400,3 +400,20 @@ def test_the_report_does_not_import_the_grid_runner():
         imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import)
                      for a in n.names}
         assert not imported & {"ibt.experiments", "ibt.pipeline", "ibt.artifacts.load_or_compute"}
+
+
+def test_node_claim_without_a_complete_counted_cell_is_not_measured(tmp_path):
+    syn = _synthesis(12)
+    syn = syn[~((syn.method == "bt-espresso") & (syn.task != "LunarLander-v3"))]
+    _write(tmp_path, "synthesis", syn.assign(expert="a2c"))
+    _experts(tmp_path, {("LunarLander-v3", "a2c"): "excluded"})
+    claim = claims.claim_nodes(stats.Results(tmp_path))
+    assert claim.verdict == NOT_MEASURED and "no counted cell" in claim.reason
+
+
+def test_mountaincar_front_without_mountaincar_runs_is_not_measured(tmp_path):
+    facts, front = _car(11)
+    _qualitative(tmp_path, facts)
+    _write(tmp_path, "bt_size_front", front.assign(task="CartPole-v1"))
+    claim = claims.claim_mountaincar(stats.Results(tmp_path))
+    assert claim.verdict == NOT_MEASURED and "no MountainCar runs" in claim.reason
