@@ -262,6 +262,8 @@ def claim_nodes(res: Results) -> tuple[str, str, str]:
     if absent:
         raise _Missing(f"synthesis lacks {', '.join(absent)}")
     nodes = counted(syn).groupby(["task", "expert", "method"])["nodes"].mean().unstack("method")
+    if not set(BT_METHODS) <= set(nodes.columns):
+        raise _Missing("no counted cell has all three BT methods")
     nodes = nodes.dropna(subset=list(BT_METHODS))
     if nodes.empty:
         raise _Missing("no counted cell has all three BT methods")
