@@ -329,19 +329,48 @@ class BeyondPart:
     render: Callable[[Results], str | None]  # None: its input is absent
 
 
+FRONT_BAR = 90.0  # % retention: "how small can a BT be and still keep this much of the expert"
+
+
 def _front(res: Results) -> str | None:
-    front = res.table("front")
-    if front is None or front.empty:
+    """Imitation-BT+ against its targets, and per method the smallest BT that keeps
+    :data:`FRONT_BAR` % of the expert (notebook 07; the sweep expert's runs)."""
+    targets, front = res.table("front_targets"), res.table("front")
+    if (targets is None or targets.empty) and (front is None or front.empty):
         return None
-    keys = [c for c in ("task", "expert", "method") if c in front]
-    values = [c for c in ("nodes", "retention_norm") if c in front]
-    if not keys or not values:
-        return f"{len(front)} rows (columns: {', '.join(front.columns)})"
-    table = front.groupby(keys, sort=False)[values].mean().reset_index()
-    head = "| " + " | ".join(keys + [f"mean {v}" for v in values]) + " |"
-    lines = [head, "|" + "---|" * (len(keys) + len(values))]
-    lines += ["| " + " | ".join([str(r[k]) for k in keys] + [_fmt(r[v]) for v in values]) + " |"
-              for _, r in table.iterrows()]
+    lines: list[str] = []
+    if targets is not None and not targets.empty:
+        lines += ["Imitation-BT+ (the grid's best tree by its held-out selection score, refined "
+                  "by return to a leaf limit, then the smallest verified BT) against the "
+                  "targets set for it: mean over seeds (lowest seed in brackets) at the task's "
+                  "headline leaf limit.", "",
+                  "| task | expert | target | leaf limit | seeds | retention | BT nodes | "
+                  "verdict |", "|---|---|---|---|---|---|---|---|"]
+        for r in targets.itertuples():
+            measured = getattr(r, "verdict", NOT_MEASURED) != NOT_MEASURED
+            retention = (f"{r.retention_norm:.1f} ({r.retention_min:.1f})" if measured
+                         else "n/a")
+            nodes = f"{r.bt_nodes:.1f}" if measured else "n/a"
+            lines.append(f"| {r.task} | {r.expert} | {r.target} | {r.leaf_limit} | {r.seeds} "
+                         f"| {retention} | {nodes} | {r.verdict} |")
+        lines.append("")
+    if front is not None and not front.empty:
+        expert = front["expert"].mode().iloc[0]
+        rows = front[front["expert"] == expert]
+        means = rows.groupby(["task", "method", "max_leaf_nodes"], sort=False)[
+            ["bt_nodes", "retention_norm"]].mean().reset_index()
+        lines += [f"The front ({expert.upper()} expert, mean over seeds per leaf limit): the "
+                  f"smallest BT whose method keeps at least {FRONT_BAR:.0f} % of the expert, "
+                  "and the best retention at any limit.", "",
+                  f"| task | method | smallest BT >= {FRONT_BAR:.0f} % (nodes: retention) | "
+                  "best retention (nodes) |", "|---|---|---|---|"]
+        for (task, method), group in means.groupby(["task", "method"], sort=False):
+            good = group[group["retention_norm"] >= FRONT_BAR].sort_values("bt_nodes")
+            best = group.sort_values("retention_norm").iloc[-1]
+            small = (f"{good.iloc[0].bt_nodes:.0f}: {good.iloc[0].retention_norm:.1f}"
+                     if not good.empty else "none")
+            lines.append(f"| {task} | {method} | {small} | {best.retention_norm:.1f} "
+                         f"({best.bt_nodes:.0f}) |")
     return "\n".join(lines)
 
 
@@ -362,7 +391,8 @@ def _decision_list(res: Results) -> str | None:
 
 
 BEYOND: list[BeyondPart] = [
-    BeyondPart("Size-retention front (refined trees)", "front.csv", _front),
+    BeyondPart("Small BTs that keep the expert: Imitation-BT+ and the size-retention front",
+               "front.csv", _front),
     BeyondPart("Decision-list synthesis: nodes against Imitation-BT's", "synthesis.csv",
                _decision_list),
 ]

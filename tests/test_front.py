@@ -78,3 +78,23 @@ def test_smoke_refinement_budget_is_tiny_and_keeps_the_task_stages():
     config = front.refine_config(cfg, "CartPole-v1", max_leaves=3)
     assert config.episodes <= 240 and config.max_leaves == 3
     assert config.stages == REFINE_BUDGETS["CartPole-v1"].stages
+
+
+def test_report_part_renders_targets_and_the_front(tmp_path):
+    from ibt import report
+    from ibt.stats import Results
+
+    results = tmp_path / "results"
+    results.mkdir()
+    rows = (_rows("MountainCar-v0", "dqn", 4, [99.0, 98.5, 97.0], [9, 9, 9])
+            + _rows("MountainCar-v0", "dqn", 2, [80.0, 85.0, 82.0], [5, 5, 5]))
+    table = pd.DataFrame(rows)
+    table.to_csv(results / "front.csv", index=False)
+    front.target_table(table, {"MountainCar-v0": 4}).to_csv(results / "front_targets.csv",
+                                                            index=False)
+    text = report._front(Results(tmp_path))
+    assert "| MountainCar-v0 | dqn | >= 98 % with <= 9 nodes | 4 | 3 | 98.2 (97.0) | 9.0 | met |" \
+        in text
+    assert "| MountainCar-v0 | imitation-bt+ | 9: 98.2 | 98.2 (9) |" in text
+    assert "| LunarLander-v3 | dqn |" in text and "not measured" in text
+    assert report._front(Results(tmp_path / "nothing")) is None
