@@ -353,8 +353,8 @@ class _Search:
             beam = [order for _, order in sorted(scored)[:BEAM_WIDTH]]
         orders = []
         for prefix in beam:
-            rest = [x for x in actions if x not in prefix]
-            orders += [(*prefix, *p) for p in itertools.permutations(rest)]
+            left = [x for x in actions if x not in prefix]
+            orders += [(*prefix, *p) for p in itertools.permutations(left)]
         return orders
 
     def tree_shaped(self, view: _View | None = None) -> list[Entry]:
@@ -614,11 +614,11 @@ def decision_list_bt(tree: DecisionTreeClassifier, task: Task, *, time_limit: fl
     sizes["imitation-bt"] = paper_key[0]
     if best is None or paper_key < best[0]:
         best = (paper_key, "imitation-bt", paper.bt.root, None)
-    _, winner, root, entries = best
-    if entries is None:
+    _, winner, root, chosen = best
+    if chosen is None:
         rule_sets, default = paper.rule_sets, paper.default_action
     else:
-        rule_sets, default = _rule_sets(entries), entries[-1][1]
+        rule_sets, default = _rule_sets(chosen), chosen[-1][1]
     bt = BehaviorTree(root, task.feature_names, task.action_names, task.value_labels)
     info = {"winner": winner, "candidates": sizes, "work": search.budget.work,
             "max_work": max_work, "stopped_by_time_limit": stopped}

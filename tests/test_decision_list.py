@@ -64,9 +64,24 @@ def probe_states(tree: DecisionTreeClassifier, seed: int) -> np.ndarray:
 FAST = {"max_work": 100_000}
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 10_000), leaves=st.integers(2, 64), n_actions=st.integers(2, 8))
+TREES = {"seed": st.integers(0, 10_000), "leaves": st.integers(2, 64),
+         "n_actions": st.integers(2, 8)}
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**TREES)
 def test_decision_list_bt_decides_exactly_as_the_tree(seed, leaves, n_actions):
+    check_exact(seed, leaves, n_actions)
+
+
+@pytest.mark.slow
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**TREES)
+def test_decision_list_bt_decides_exactly_as_the_tree_many(seed, leaves, n_actions):
+    check_exact(seed, leaves, n_actions)
+
+
+def check_exact(seed: int, leaves: int, n_actions: int) -> None:
     tree = random_tree(seed, leaves, n_actions)
     result = decision_list_bt(tree, TOY, check=False, **FAST)
     states = probe_states(tree, seed)
@@ -77,8 +92,8 @@ def test_decision_list_bt_decides_exactly_as_the_tree(seed, leaves, n_actions):
     assert isinstance(result.bt.root, Selector)
 
 
-@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 10_000), leaves=st.integers(2, 40), n_actions=st.integers(2, 6))
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), leaves=st.integers(2, 32), n_actions=st.integers(2, 6))
 def test_search_never_returns_more_than_the_papers_ordering(seed, leaves, n_actions):
     tree = random_tree(seed, leaves, n_actions)
     result = decision_list_bt(tree, TOY, **FAST)
