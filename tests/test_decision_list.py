@@ -88,6 +88,7 @@ def check_exact(seed: int, leaves: int, n_actions: int) -> None:
     # Expect: the BT's decision is the tree's on every probe, boundaries included
     assert np.array_equal(result.bt.decide(states), tree.predict(states))
     verify(result.bt, tree, TOY, seed=seed)
+    result.bt.validate()  # and provably every state reaches an action (what loading checks)
     assert result.method == METHOD
     assert isinstance(result.bt.root, Selector)
 
