@@ -332,11 +332,19 @@ def sweep_points(tasks: list[str], algo: str, methods: list[str],
     return points
 
 
-def plus_points(experts: dict[str, list[str]], leaves: dict[str, list[int | None]],
-                seeds: list[int]) -> list[Point]:
-    """Imitation-BT+ for each task's experts at each refinement leaf limit."""
-    return [Point(task, algo, PLUS, s, L) for task, algos in experts.items() for algo in algos
-            for L in leaves.get(task, [None]) for s in seeds]
+def plus_points(experts: dict[str, list[str]], headline: dict[str, int | None],
+                sweep_expert: str, leaves: dict[str, list[int | None]], seeds: list[int]
+                ) -> list[Point]:
+    """Imitation-BT+ for each task's experts at its headline leaf limit, and for the sweep
+    expert at every limit of ``leaves`` too (the front)."""
+    points = []
+    for task, algos in experts.items():
+        for algo in algos:
+            limits = [headline.get(task)]
+            if algo == sweep_expert:
+                limits += [L for L in leaves.get(task, []) if L != headline.get(task)]
+            points += [Point(task, algo, PLUS, s, L) for L in limits for s in seeds]
+    return points
 
 
 def without_pending(points: list[Point], pending: list[list[Any]]) -> list[Point]:

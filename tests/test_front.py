@@ -20,11 +20,15 @@ def test_sweep_points_add_the_grid_budget_and_mark_it_as_the_grid_run():
 
 
 def test_plus_points_and_pending():
-    points = front.plus_points({"CartPole-v1": ["dqn", "ppo"]}, {"CartPole-v1": [2, None]}, [0, 1])
-    assert len(points) == 8 and {p.method for p in points} == {front.PLUS}
+    points = front.plus_points({"CartPole-v1": ["dqn", "ppo"]}, {"CartPole-v1": 3}, "dqn",
+                               {"CartPole-v1": [2, 3, None]}, [0, 1])
+    assert {p.method for p in points} == {front.PLUS}
+    assert sorted({(p.algo, p.leaves) for p in points}, key=str) == sorted(
+        {("dqn", 3), ("dqn", 2), ("dqn", None), ("ppo", 3)}, key=str)
+    assert len(points) == 8
     left = front.without_pending(points, [["CartPole-v1", "ppo"],
                                           ["CartPole-v1", "dqn", front.PLUS, 2]])
-    assert {(p.algo, p.leaves) for p in left} == {("dqn", None)}
+    assert {(p.algo, p.leaves) for p in left} == {("dqn", 3), ("dqn", None)}
 
 
 def _rows(task: str, algo: str, leaves: int, retention: list[float], nodes: list[int]
