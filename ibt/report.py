@@ -332,28 +332,34 @@ class BeyondPart:
 FRONT_BAR = 90.0  # % retention: "how small can a BT be and still keep this much of the expert"
 
 
+def plus_targets_markdown(res: Results) -> str | None:
+    """Imitation-BT+ against its targets (``front_targets.csv``), or None when absent."""
+    targets = res.table("front_targets")
+    if targets is None or targets.empty:
+        return None
+    lines = ["| task | expert | target | leaf limit | seeds | retention | BT nodes | verdict |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in targets.itertuples():
+        measured = getattr(r, "verdict", NOT_MEASURED) != NOT_MEASURED
+        retention = f"{r.retention_norm:.1f} ({r.retention_min:.1f})" if measured else "n/a"
+        nodes = f"{r.bt_nodes:.1f}" if measured else "n/a"
+        lines.append(f"| {r.task} | {r.expert} | {r.target} | {r.leaf_limit} | {r.seeds} "
+                     f"| {retention} | {nodes} | {r.verdict} |")
+    return "\n".join(lines)
+
+
 def _front(res: Results) -> str | None:
     """Imitation-BT+ against its targets, and per method the smallest BT that keeps
     :data:`FRONT_BAR` % of the expert (notebook 07; the sweep expert's runs)."""
-    targets, front = res.table("front_targets"), res.table("front")
-    if (targets is None or targets.empty) and (front is None or front.empty):
+    targets, front = plus_targets_markdown(res), res.table("front")
+    if targets is None and (front is None or front.empty):
         return None
     lines: list[str] = []
-    if targets is not None and not targets.empty:
-        lines += ["Imitation-BT+ (the grid's best tree by its held-out selection score, refined "
-                  "by return to a leaf limit, then the smallest verified BT) against the "
-                  "targets set for it: mean over seeds (lowest seed in brackets) at the task's "
-                  "headline leaf limit.", "",
-                  "| task | expert | target | leaf limit | seeds | retention | BT nodes | "
-                  "verdict |", "|---|---|---|---|---|---|---|---|"]
-        for r in targets.itertuples():
-            measured = getattr(r, "verdict", NOT_MEASURED) != NOT_MEASURED
-            retention = (f"{r.retention_norm:.1f} ({r.retention_min:.1f})" if measured
-                         else "n/a")
-            nodes = f"{r.bt_nodes:.1f}" if measured else "n/a"
-            lines.append(f"| {r.task} | {r.expert} | {r.target} | {r.leaf_limit} | {r.seeds} "
-                         f"| {retention} | {nodes} | {r.verdict} |")
-        lines.append("")
+    if targets is not None:
+        lines += ["Imitation-BT+ (the grid's best trees by their held-out selection score, "
+                  "refined by return to a leaf limit, then the smallest verified BT) against "
+                  "the targets set for it: mean over seeds (lowest seed in brackets) at the "
+                  "task's headline leaf limit.", "", targets, ""]
     if front is not None and not front.empty:
         expert = front["expert"].mode().iloc[0]
         rows = front[front["expert"] == expert]
@@ -479,6 +485,11 @@ def readme_block(res: Results) -> str:
         "|---|---|---|",
         *[f"| {r.claim} | {r.verdict} | {r.reason} |" for r in table.itertuples()],
         "",
+        *(["Beyond the paper: **Imitation-BT+** (notebook 07) refines the grid's best trees by "
+           "return and keeps the smallest verified BT; mean over seeds (lowest seed in "
+           "brackets), random-normalised retention, BT nodes. The front of every method is "
+           "in [figures/front.png](figures/front.png).", "", plus, ""]
+          if (plus := plus_targets_markdown(res)) is not None else []),
         timings_markdown(res),
         "",
         README_END,

@@ -345,12 +345,13 @@ def test_beyond_the_paper_reads_its_tables(tmp_path):
         {"task": "CartPole-v1", "expert": "dqn", "method": m, "seed": 0, "nodes": n}
         for m, n in [("imitation-bt", 20), ("decision-list", 10)]]))
     _write(tmp_path, "front", pd.DataFrame({"task": ["CartPole-v1"], "expert": ["dqn"],
-                                            "method": ["refined"], "nodes": [9],
+                                            "method": ["imitation-bt+"], "seed": [0],
+                                            "max_leaf_nodes": [3], "bt_nodes": [9],
                                             "retention_norm": [97.0]}))
     text = report.beyond_markdown(res)
     assert "_not measured" not in text
     assert "| CartPole-v1 | dqn | 20.0 | 10.0 | 0.50 |" in text
-    assert "| CartPole-v1 | dqn | refined | 9.0 | 97.0 |" in text
+    assert "| CartPole-v1 | imitation-bt+ | 9: 97.0 | 97.0 (9) |" in text
 
 
 def test_deviations_name_the_experts_networks_and_steps(tmp_path):
