@@ -21,6 +21,7 @@ written); 130 interrupted (Ctrl-C; files are written whole or not at all).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import shlex
 import sys
@@ -62,6 +63,17 @@ def _int_at_least(minimum: int, what: str) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def _seconds(text: str) -> float:
+    """An argparse type: a finite number of seconds, 0 or more."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (seconds), got {text}")
+    return value
 
 
 POSITIVE = _int_at_least(1, "a count")
@@ -548,7 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--groot-port", type=POSITIVE, default=None, metavar="PORT",
                     help="publish the tree to Groot2 on this port while it runs "
                     "(behaviortreepy's Groot2Publisher; connect Groot2 to it)")
-    rb.add_argument("--step-delay", type=float, default=0.0, metavar="SECONDS",
+    rb.add_argument("--step-delay", type=_seconds, default=0.0, metavar="SECONDS",
                     help="sleep between steps, to watch a run in Groot2")
     rb.set_defaults(func=_run_btcpp)
     return parser

@@ -83,7 +83,8 @@ def test_check_feature_flavour_and_missing_files_are_refused(xml_files, capsys):
 
 def test_bad_numbers_are_refused(xml_files, capsys):
     _, portable, _ = xml_files
-    for argv in (["--episodes", "0"], ["--groot-port", "70000"], ["--step-delay", "-1"]):
+    for argv in (["--episodes", "0"], ["--groot-port", "70000"], ["--step-delay", "-1"],
+                 ["--step-delay", "nan"], ["--step-delay", "inf"]):
         code = main(["run-btcpp", str(portable), "--task", "MountainCar-v0", *argv])
         assert code == 2, argv
         assert capsys.readouterr().err.count("\n") == 1
