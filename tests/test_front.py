@@ -46,7 +46,10 @@ def test_target_table_verdicts():
         _rows("MountainCar-v0", "dqn", 4, [99.0, 98.5, 97.0], [9, 9, 9])       # mean 98.2
         + _rows("MountainCar-v0", "dqn", 5, [99.5, 99.5, 99.5], [11, 11, 11])  # too big
         + _rows("CartPole-v1", "dqn", 3, [100.0, 100.0, 38.0], [6, 6, 5]))     # mean 79.3
-    out = front.target_table(table, {"MountainCar-v0": 4, "CartPole-v1": 3})
+    table = pd.concat([table, pd.DataFrame(_rows("highway-fast-v0", "dqn", 16, [90.0, 80.0],
+                                                 [40, 50]))])
+    out = front.target_table(table, {"MountainCar-v0": 4, "CartPole-v1": 3,
+                                     "highway-fast-v0": None})
     verdict = {(r.task, r.expert): r.verdict for r in out.itertuples()}
     assert verdict[("MountainCar-v0", "dqn")] == "met"
     assert verdict[("CartPole-v1", "dqn")] == "missed"
@@ -54,6 +57,10 @@ def test_target_table_verdicts():
     assert verdict[("LunarLander-v3", "dqn")] == "not measured"
     mc = out[(out.task == "MountainCar-v0")].iloc[0]
     assert mc.best_fitting_limit == 4  # the 5-leaf BTs break the 9-node bar
+    # a task without a bar is reported as measured, with its means
+    hw = out[out.task == "highway-fast-v0"].iloc[0]
+    assert (hw.verdict, hw.target, hw.retention_norm, hw.bt_nodes) == (
+        "measured", "reported as measured", 85.0, 45.0)
 
 
 def test_stage_seconds_count_a_plus_distillation_once_per_seed():
