@@ -109,3 +109,24 @@ def test_report_part_renders_targets_and_the_front(tmp_path):
     assert "| MountainCar-v0 | imitation-bt+ | 9: 98.2 | 98.2 (9) |" in text
     assert "| LunarLander-v3 | dqn |" in text and "not measured" in text
     assert report._front(Results(tmp_path / "nothing")) is None
+
+
+def test_front_axes_have_plain_few_ticks():
+    # Expect: at most 6 plain-number ticks inside the data range, whatever the range
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ibt.plots import _plain_log_ticks
+
+    for low, high in [(4, 500), (38, 49), (5, 11), (2, 30)]:
+        fig, ax = plt.subplots()
+        ax.plot([low, high], [0, 1])
+        ax.set_xscale("log")
+        _plain_log_ticks(ax)
+        ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+        labels = [ax.xaxis.get_major_formatter()(t) for t in ticks]
+        assert 3 <= len(ticks) <= 6, (low, high, ticks)
+        assert all(label.isdigit() for label in labels), labels
+        plt.close(fig)
