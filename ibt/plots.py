@@ -585,7 +585,7 @@ def _plain_log_ticks(ax: plt.Axes, most: int = 6) -> None:
     inside = [t for t in _NICE_TICKS if low <= t <= high]
     if len(inside) > most:
         targets = np.geomspace(inside[0], inside[-1], most)
-        inside = sorted({min(inside, key=lambda t, g=g: abs(np.log(t / g))) for g in targets})
+        inside = sorted({min(inside, key=lambda t: abs(np.log(t / goal))) for goal in targets})
     if len(inside) < 3:  # a narrow range: whole numbers spread over it
         inside = sorted({round(float(t)) for t in np.geomspace(low, high, 5)[1:-1]})
     ax.xaxis.set_major_locator(FixedLocator(inside))
