@@ -385,6 +385,27 @@ def image_panels(images: dict[str, str | Path], path: str | Path | None = None,
     return fig
 
 
+_NICE_TICKS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100, 120, 150, 200,
+               250, 300, 400, 500, 600, 800, 1000)
+
+
+def _plain_log_ticks(ax: plt.Axes, most: int = 6) -> None:
+    """Plain-number ticks (``20``, not ``2 x 10^1``) on a log x axis, at most ``most`` of them
+    and roughly even in log space, so that neighbouring labels never overlap."""
+    from matplotlib.ticker import FixedLocator, NullFormatter, StrMethodFormatter
+
+    low, high = ax.get_xlim()
+    inside = [t for t in _NICE_TICKS if low <= t <= high]
+    if len(inside) > most:
+        targets = np.geomspace(inside[0], inside[-1], most)
+        inside = sorted({min(inside, key=lambda t: abs(np.log(t / goal))) for goal in targets})
+    if len(inside) < 3:  # a narrow range: whole numbers spread over it
+        inside = sorted({round(float(t)) for t in np.geomspace(low, high, 5)[1:-1]})
+    ax.xaxis.set_major_locator(FixedLocator(inside))
+    ax.xaxis.set_major_formatter(StrMethodFormatter("{x:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
 def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
                       path: str | Path | None = None,
                       xlabel: str = "decision-tree nodes (log)", columns: int = 2
@@ -417,6 +438,7 @@ def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
         ax.axhline(100, color="black", lw=0.8, ls=":")
         ax.axhline(98, color=GREY, lw=0.8, ls="--")
         ax.set_xscale("log")
+        _plain_log_ticks(ax)
         ax.set_title(task)
         ax.set_xlabel(xlabel)
     for ax in axes[:, 0]:
@@ -570,27 +592,6 @@ def package_delivery(frame: np.ndarray, node_types: pd.DataFrame, performance: p
     if path is not None:
         save_figure(fig, path)
     return fig
-
-
-_NICE_TICKS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100, 120, 150, 200,
-               250, 300, 400, 500, 600, 800, 1000)
-
-
-def _plain_log_ticks(ax: plt.Axes, most: int = 6) -> None:
-    """Plain-number ticks (``20``, not ``2 x 10^1``) on a log x axis, at most ``most`` of them
-    and roughly even in log space, so that neighbouring labels never overlap."""
-    from matplotlib.ticker import FixedLocator, NullFormatter, StrMethodFormatter
-
-    low, high = ax.get_xlim()
-    inside = [t for t in _NICE_TICKS if low <= t <= high]
-    if len(inside) > most:
-        targets = np.geomspace(inside[0], inside[-1], most)
-        inside = sorted({min(inside, key=lambda t: abs(np.log(t / goal))) for goal in targets})
-    if len(inside) < 3:  # a narrow range: whole numbers spread over it
-        inside = sorted({round(float(t)) for t in np.geomspace(low, high, 5)[1:-1]})
-    ax.xaxis.set_major_locator(FixedLocator(inside))
-    ax.xaxis.set_major_formatter(StrMethodFormatter("{x:g}"))
-    ax.xaxis.set_minor_formatter(NullFormatter())
 
 
 def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.DataFrame,
