@@ -1,34 +1,54 @@
 """Imitation-BT: distil deep-RL agents into small, readable Behavior Trees.
 
-The data flow, one module per step: ``tasks`` (environments) -> ``experts`` (SB3 agents) ->
-``distill`` (interactive imitation into a CART tree) -> ``rules`` / ``logic`` / ``synthesis``
-(Action Template Library, Espresso, the BT) -> ``evaluate`` (returns, retention) -> ``plots``.
-Importing ``ibt`` registers the package-delivery environment with gymnasium.
+The data flow, one sub-package per step: ``tasks`` (the catalogue of environments) ->
+``experts`` (SB3 agents) -> ``distill`` (interactive imitation into a CART tree) -> ``refine``
+(by return) -> ``synth`` (rules, Espresso, the BT) -> ``bt`` (the model and its executors) ->
+``evaluate`` (returns, retention) -> ``export`` (drawings, JSON, BehaviorTree.CPP) -> ``runs``
+(grids and the cache) -> ``report`` (statistics, claims, figures) -> ``views`` (widgets).
+
+``import ibt`` is cheap: the names below are imported on first use, so ``python -m ibt --help``
+and ``import ibt.report.stats`` load no torch, gymnasium, scikit-learn or pandas.
 """
 
+from __future__ import annotations
+
+import importlib
 import os
+from typing import Any
 
 # Headless rendering: pygame (used by gymnasium's and highway-env's renderers) needs no display.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
-from ibt import envs  # noqa: F401  (registers PackageDelivery-v0)
-from ibt.bt import BehaviorTree, tick
-from ibt.config import config
-from ibt.decision_list import decision_list_bt
-from ibt.distill import METHODS, DistillConfig, distill
-from ibt.experts import load_expert
-from ibt.export import load_json, save_drawing, save_json, to_graphviz
-from ibt.pipeline import compare_policies, distill_cached, iterations_frame, save_tree
-from ibt.policies import BTPolicy, TreePolicy
-from ibt.synthesis import imitation_bt, verify
-from ibt.tasks import get_task, register_task
-
 __version__ = "0.1.0"
 
-__all__ = [
-    "METHODS", "BTPolicy", "BehaviorTree", "DistillConfig", "TreePolicy", "compare_policies",
-    "config", "decision_list_bt", "distill", "distill_cached", "get_task", "imitation_bt",
-    "iterations_frame", "load_expert", "load_json", "register_task", "save_drawing", "save_json",
-    "save_tree", "tick", "to_graphviz", "verify",
-]
+#: The convenience API of notebooks: name -> the module that defines it (imported lazily).
+_LAZY: dict[str, str] = {
+    "BehaviorTree": "ibt.bt.model", "tick": "ibt.bt.model",
+    "config": "ibt.profiles",
+    "decision_list_bt": "ibt.synth.decision_list",
+    "METHODS": "ibt.distill.loop", "DistillConfig": "ibt.distill.loop",
+    "load_expert": "ibt.experts.expert",
+    "load_json": "ibt.export.drawing", "save_drawing": "ibt.export.drawing",
+    "save_json": "ibt.export.drawing", "to_graphviz": "ibt.export.drawing",
+    "compare_policies": "ibt.runs.pipeline", "distill_cached": "ibt.runs.pipeline",
+    "iterations_frame": "ibt.runs.pipeline", "save_tree": "ibt.runs.pipeline",
+    "BTPolicy": "ibt.evaluate.policies", "TreePolicy": "ibt.evaluate.policies",
+    "imitation_bt": "ibt.synth.imitation", "verify": "ibt.synth.imitation",
+    "get_task": "ibt.tasks.catalogue", "register_task": "ibt.tasks.catalogue",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ibt' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})

@@ -9,7 +9,8 @@
     python -m ibt run-btcpp bt.xml --task CartPole-v1     # BehaviorTree.CPP ticks the BT
 
 Your own environment: ``--env-module PKG.MODULE`` (every subcommand) imports a module that
-registers gymnasium environments and, optionally, ibt tasks (``ibt.tasks.register_task``, for
+registers gymnasium environments and, optionally, ibt tasks (``ibt.tasks.catalogue.register_task``,
+for
 readable feature and action names); gymnasium's ``PKG.MODULE:EnvId`` works as a task name too.
 ``distill`` takes any gymnasium env id with an SB3 checkpoint (``--checkpoint``); the features
 are then named x0, x1, ... and tasks without a budget get a 16-leaf tree.
@@ -32,9 +33,9 @@ from typing import Any, NoReturn
 
 import joblib
 
-from ibt.distill import DEFAULT_MAX_LEAF_NODES
-from ibt.experts import ALGOS
-from ibt.tasks import Task
+from ibt.distill.loop import DEFAULT_MAX_LEAF_NODES
+from ibt.experts.expert import ALGOS
+from ibt.tasks.catalogue import Task
 
 EXPORT_FORMATS = ("json", "dot", "svg", "png", "btcpp-xml")
 EXPORT_SUFFIXES = {"json": (".json",), "dot": (".dot", ".gv"), "svg": (".svg",),
@@ -142,8 +143,8 @@ def _again(args: argparse.Namespace, *extra: str) -> str:
 def save_tree_file(path: str | Path, tree: Any, task: Task | str, info: dict[str, Any]) -> Path:
     """A decision tree with what it needs to be read again: the task, the names of the features
     and actions it was fitted on, the modules that register the task's environment, run facts."""
-    from ibt.artifacts import atomic_target
-    from ibt.tasks import resolve_task
+    from ibt.files import atomic_target
+    from ibt.tasks.catalogue import resolve_task
 
     task = task if isinstance(task, Task) else resolve_task(task)
     info = dict(info)
@@ -189,7 +190,7 @@ def load_tree_file(path: str | Path) -> dict[str, Any]:
 
 def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) -> Task:
     """The task a tree file was distilled on, with the names it was fitted on."""
-    from ibt.tasks import resolve_task
+    from ibt.tasks.catalogue import resolve_task
 
     name = doc["task"]
     try:
@@ -212,7 +213,7 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
 
 
 def _load_bt(path: str | Path):
-    from ibt.export import load_json
+    from ibt.export.drawing import load_json
 
     bt_file = shlex.quote(str(Path(path).with_suffix(".json")))
     path = check_input(path, "behavior tree", "make one with `python -m ibt distill CartPole-v1 "
@@ -226,10 +227,10 @@ def _load_bt(path: str | Path):
 
 # --------------------------------------------------------------------------- commands
 def _train(args: argparse.Namespace) -> int:
-    from ibt.experts import hyperparams
+    from ibt.experts.expert import hyperparams
+    from ibt.experts.training import train_missing
     from ibt.paths import DATA_DIR
-    from ibt.tasks import resolve_task
-    from ibt.training import train_missing
+    from ibt.tasks.catalogue import resolve_task
 
     # `train CartPole-v1 ppo` reads as `train CartPole-v1 --algo ppo`
     named_algos = [t.lower() for t in args.tasks if t.lower() in ALGOS]
@@ -254,9 +255,9 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _random(args: argparse.Namespace) -> int:
+    from ibt.experts.training import random_baselines
     from ibt.paths import DATA_DIR
-    from ibt.tasks import resolve_task
-    from ibt.training import random_baselines
+    from ibt.tasks.catalogue import resolve_task
 
     tasks = [resolve_task(t) for t in args.tasks]
     path = check_output(args.output or DATA_DIR / "experts" / "random.csv", (".csv",))
@@ -268,9 +269,9 @@ def _random(args: argparse.Namespace) -> int:
 
 
 def _distill(args: argparse.Namespace) -> int:
-    from ibt.distill import DistillConfig, distill
-    from ibt.experts import load_expert
-    from ibt.tasks import resolve_task
+    from ibt.distill.loop import DistillConfig, distill
+    from ibt.experts.expert import load_expert
+    from ibt.tasks.catalogue import resolve_task
 
     task = resolve_task(args.task)
     out = check_output(args.output, (".joblib",))
@@ -295,7 +296,7 @@ def _distill(args: argparse.Namespace) -> int:
 
 
 def _refine(args: argparse.Namespace) -> int:
-    from ibt.refine import refine, task_config
+    from ibt.refine.by_return import refine, task_config
 
     out = check_output(args.output, (".joblib",))
     doc = load_tree_file(args.tree)
@@ -321,8 +322,8 @@ def _refine(args: argparse.Namespace) -> int:
 
 
 def _synthesize(args: argparse.Namespace) -> int:
-    from ibt.export import save_json
-    from ibt.synthesis import NotEquivalentError, imitation_bt
+    from ibt.export.drawing import save_json
+    from ibt.synth.imitation import NotEquivalentError, imitation_bt
 
     out = check_output(args.output, (".json",))
     doc = load_tree_file(args.tree)
@@ -332,11 +333,11 @@ def _synthesize(args: argparse.Namespace) -> int:
             result = imitation_bt(doc["tree"], task, default_strategy=args.default_strategy,
                                   dont_cares=args.dont_cares)
         elif args.method == "decision-list":  # beyond the paper: the smallest verified BT
-            from ibt.decision_list import decision_list_bt
+            from ibt.synth.decision_list import decision_list_bt
 
             result = decision_list_bt(doc["tree"], task)
         else:
-            from ibt import baselines
+            from ibt.synth import baselines
 
             make = {"bt-espresso": baselines.bt_espresso,
                     "re-bt-espresso": baselines.re_bt_espresso}
@@ -352,15 +353,15 @@ def _synthesize(args: argparse.Namespace) -> int:
 
 
 def _matching_tasks(bt: Any) -> list[str]:
-    from ibt.tasks import TASKS
+    from ibt.tasks.catalogue import TASKS
 
     return [t.name for t in TASKS.values()
             if (t.feature_names, t.action_names) == (bt.feature_names, bt.action_names)]
 
 
 def _load_policy(path: Path, args: argparse.Namespace):
-    from ibt.policies import BTPolicy, TreePolicy
-    from ibt.tasks import resolve_task
+    from ibt.evaluate.policies import BTPolicy, TreePolicy
+    from ibt.tasks.catalogue import resolve_task
 
     if path.suffix == ".json":
         bt = _load_bt(path)
@@ -393,9 +394,9 @@ def _load_policy(path: Path, args: argparse.Namespace):
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from ibt.evaluate import episode_metrics, final_seeds, rollout
-    from ibt.experts import load_expert
-    from ibt.tasks import resolve_task
+    from ibt.evaluate.rollouts import episode_metrics, final_seeds, rollout
+    from ibt.experts.expert import load_expert
+    from ibt.tasks.catalogue import resolve_task
 
     if args.policy in ALGOS:
         if args.task is None:
@@ -416,8 +417,8 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from ibt.artifacts import atomic_write_text
-    from ibt.export import require_dot, save_drawing, save_json, to_graphviz
+    from ibt.export.drawing import require_dot, save_drawing, save_json, to_graphviz
+    from ibt.files import atomic_write_text
 
     out = check_output(args.output, EXPORT_SUFFIXES[args.format])
     if args.format in ("svg", "png"):
@@ -426,7 +427,7 @@ def _export(args: argparse.Namespace) -> int:
     if args.format == "json":
         save_json(bt, out)
     elif args.format == "btcpp-xml":
-        from ibt.btcpp import to_btcpp_xml
+        from ibt.export.btcpp import to_btcpp_xml
 
         atomic_write_text(out, to_btcpp_xml(bt, flavour=args.flavour))
     elif args.format == "dot":
@@ -438,8 +439,8 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _run_btcpp(args: argparse.Namespace) -> int:
-    from ibt.btcpp_engine import run_btcpp
-    from ibt.tasks import resolve_task
+    from ibt.export.engine import run_btcpp
+    from ibt.tasks.catalogue import resolve_task
 
     xml = check_input(args.xml, "BehaviorTree.CPP XML", "write one with `python -m ibt export "
                       "BT.json --format btcpp-xml -o BT.xml`")
@@ -506,7 +507,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="expert labels per iteration (default: the task's budget)")
     dist.add_argument("--max-leaf-nodes", type=LEAVES, default=None,
                       help="leaf limit of the tree (default: the task's budget in "
-                      f"ibt.distill.TASK_BUDGETS; {DEFAULT_MAX_LEAF_NODES} for other tasks)")
+                      f"ibt.distill.loop.TASK_BUDGETS; {DEFAULT_MAX_LEAF_NODES} for other tasks)")
     dist.add_argument("--quiet", action="store_true", help="no progress bar")
     dist.set_defaults(func=_distill)
 
@@ -518,7 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="prune to at most this many leaves (default: no forced pruning)")
     ref.add_argument("--episodes", type=POSITIVE, default=None,
                      help="refinement budget in episodes (default: the task's, "
-                     "ibt.refine.REFINE_BUDGETS; 20,000 for other tasks)")
+                     "ibt.refine.by_return.REFINE_BUDGETS; 20,000 for other tasks)")
     ref.add_argument("--seed", type=SEED, default=0)
     ref.add_argument("--quiet", action="store_true", help="no progress bar")
     ref.set_defaults(func=_refine)
@@ -586,7 +587,7 @@ def main(argv: list[str] | None = None) -> int:
         return stop.code if isinstance(stop.code, int) else EXIT_BAD_INPUT
     args.argv = argv
     try:
-        from ibt.tasks import import_env_module
+        from ibt.tasks.catalogue import import_env_module
 
         for module in args.env_module:
             import_env_module(module)

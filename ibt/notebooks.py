@@ -6,7 +6,7 @@ also drops widget state: the notebook's ``widgets`` metadata (the saved models) 
 outputs, the ``application/vnd.jupyter.widget-view+json`` views, which point at those models and
 draw as "model not found" without them; an output left with only the widget's ``text/plain``
 repr (``VBox(children=...)``) goes too. The committed notebooks carry the static rendering of
-their widgets (see :mod:`ibt.widgets`), which needs none of this.
+their widgets (see :mod:`ibt.views.widgets`), which needs none of this.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ _ADDRESS = re.compile(r" at 0x[0-9a-f]+>")
 
 def scrub(path: str | Path) -> None:
     """Strip volatile metadata from a notebook file in place (atomically)."""
-    from ibt.artifacts import atomic_write_text
+    from ibt.files import atomic_write_text
 
     path = Path(path)
     nb = nbformat.read(path, as_version=4)
@@ -67,7 +67,7 @@ def record_time(seconds: float, data_dir: Path | None = None) -> Path:
     import os
     import platform
 
-    from ibt.artifacts import atomic_write_text
+    from ibt.files import atomic_write_text
     from ibt.paths import DATA_DIR
 
     target = (data_dir or DATA_DIR) / "results" / "make_figures.json"

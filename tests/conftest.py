@@ -25,6 +25,6 @@ def fit_tree(n_features: int = 4, n_actions: int = 3, leaves: int = 12, seed: in
 
 @pytest.fixture(scope="session")
 def cartpole_expert():
-    from ibt.experts import load_expert
+    from ibt.experts.expert import load_expert
 
     return load_expert("CartPole-v1", "ppo")

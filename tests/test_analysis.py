@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ibt.analysis import (
+from ibt.report.analysis import (
     FROZENLAKE_OPTIMAL_PATHS,
     action_grid,
     frozenlake_step,
     greedy_path,
     path_agreement,
 )
-from ibt.tasks import get_task
+from ibt.tasks.catalogue import get_task
 
 # FrozenLake actions: 0 left, 1 down, 2 right, 3 up
 
@@ -52,7 +52,7 @@ def test_the_papers_mountaincar_rule_read_literally_always_pushes_right_at_the_s
     import numpy as np
 
     import ibt
-    from ibt.analysis import mountaincar_paper_rule
+    from ibt.report.analysis import mountaincar_paper_rule
 
     car = ibt.get_task("MountainCar-v0")
     literal = mountaincar_paper_rule(car)

@@ -7,10 +7,10 @@ import shutil
 import numpy as np
 import pytest
 
-from ibt.animate import CLIPS, Clip, best_expert, episode, film, main
-from ibt.export import load_json
+from ibt.export.drawing import load_json
 from ibt.paths import DATA_DIR
-from ibt.tasks import get_task
+from ibt.tasks.catalogue import get_task
+from ibt.views.animate import CLIPS, Clip, best_expert, episode, film, main
 
 pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
 

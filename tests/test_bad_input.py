@@ -19,10 +19,10 @@ import pytest
 from sklearn.tree import DecisionTreeClassifier
 
 from ibt.cli import main, save_tree_file
-from ibt.experts import expert_path
-from ibt.export import save_json
-from ibt.synthesis import imitation_bt
-from ibt.tasks import get_task
+from ibt.experts.expert import expert_path
+from ibt.export.drawing import save_json
+from ibt.synth.imitation import imitation_bt
+from ibt.tasks.catalogue import get_task
 
 CARTPOLE_DQN = str(expert_path("CartPole-v1", "dqn"))
 CARTPOLE_PPO = str(expert_path("CartPole-v1", "ppo"))

@@ -10,17 +10,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.baselines import (
+from ibt.bt.model import Action, Condition, Fallback, Inverter, Selector, Sequence
+from ibt.synth.baselines import (
     bt_espresso,
     bt_espresso_symbols,
     factor_common,
     re_bt_espresso,
     re_bt_espresso_symbols,
 )
-from ibt.bt import Action, Condition, Fallback, Inverter, Selector, Sequence
-from ibt.rules import Literal, action_template_library
-from ibt.synthesis import NotEquivalentError, imitation_bt, verify
-from ibt.tasks import Task
+from ibt.synth.imitation import NotEquivalentError, imitation_bt, verify
+from ibt.synth.rules import Literal, action_template_library
+from ibt.tasks.catalogue import Task
 from tests.conftest import fit_tree
 
 TOY = Task(name="toy", gym_id="none", feature_names=("f0", "f1", "f2", "f3"),
@@ -91,7 +91,7 @@ def test_baseline_decides_as_tree_everywhere(seed, leaves, n_actions, method):
 
 
 def test_check_rejects_a_wrong_tree(monkeypatch):
-    import ibt.baselines as baselines
+    import ibt.synth.baselines as baselines
 
     tree, _ = fit_tree(leaves=10)
     monkeypatch.setattr(baselines, "factor_common", lambda terms: ((), terms[:1]))

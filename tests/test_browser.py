@@ -3,7 +3,7 @@
 The test serves a temporary copy of notebook 00 (profile ``smoke``, outputs cleared) with
 JupyterLab on a free localhost port, opens it in Debian's ``chromium`` through Playwright, runs
 every cell, moves two sliders and checks that the trace shown in the page is the one
-:func:`ibt.widgets.trace_view` computes for the new state, on the BT the notebook saved. It
+:func:`ibt.views.widgets.trace_view` computes for the new state, on the BT the notebook saved. It
 needs ``chromium`` (``apt-get install -y chromium``); CI does not install it, so there it skips.
 """
 
@@ -23,8 +23,8 @@ from pathlib import Path
 import nbformat
 import pytest
 
-from ibt import widgets
-from ibt.export import load_json
+from ibt.export.drawing import load_json
+from ibt.views import widgets
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"

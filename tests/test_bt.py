@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt.bt import (
+from ibt.bt.model import (
     NO_DECISION,
     Action,
     BehaviorTree,
@@ -125,8 +125,8 @@ def test_categorical_labels_read_as_categories():
 
 # ------------------------------------------------------------- node identity, shapes, proofs
 def test_a_node_object_used_twice_gets_two_positions_in_trace_and_drawing():
-    from ibt.bt import indexed
-    from ibt.export import drawing_elements, to_graphviz
+    from ibt.bt.model import indexed
+    from ibt.export.drawing import drawing_elements, to_graphviz
 
     # TREE uses the one object A_LOW twice (positions 2 and 7 in depth-first order)
     positions = [i for i, (node, _) in enumerate(indexed(TREE.root)) if node is A_LOW]
@@ -193,7 +193,7 @@ def test_validate_proves_that_every_state_reaches_an_action(root, proven):
 
 
 def test_a_gap_is_reported_with_a_state_inside_it():
-    from ibt.bt import unreached_state
+    from ibt.bt.model import unreached_state
 
     tree = bt(Selector((Sequence((Condition(0, "<=", 0.0), Action(0))),
                         Sequence((Condition(0, ">", 0.5), Action(1))))))
@@ -236,7 +236,7 @@ def test_validate_is_sound(root):
 def test_every_committed_bt_loads_and_is_proven():
     from pathlib import Path
 
-    from ibt.export import load_json
+    from ibt.export.drawing import load_json
 
     files = sorted(Path(__file__).parents[1].glob("data/trees/*/*/*.json"))
     assert len(files) >= 24

@@ -11,9 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt.baselines import bt_espresso, re_bt_espresso
-from ibt.bt import Action, BehaviorTree, Condition, Fallback, Inverter, Selector, Sequence
-from ibt.btcpp import (
+from ibt.bt.model import Action, BehaviorTree, Condition, Fallback, Inverter, Selector, Sequence
+from ibt.export.btcpp import (
     BUILTIN_IDS,
     FLAVOURS,
     action_ids,
@@ -22,8 +21,9 @@ from ibt.btcpp import (
     threshold_text,
     to_btcpp_xml,
 )
-from ibt.synthesis import imitation_bt
-from ibt.tasks import TASKS, get_task
+from ibt.synth.baselines import bt_espresso, re_bt_espresso
+from ibt.synth.imitation import imitation_bt
+from ibt.tasks.catalogue import TASKS, get_task
 from tests.conftest import fit_tree
 from tests.test_synthesis import TOY
 

@@ -8,8 +8,8 @@ import socket
 
 import pytest
 
-from ibt import btcpp_engine
 from ibt.cli import main
+from ibt.export import engine
 from ibt.paths import DATA_DIR
 
 MOUNTAINCAR = DATA_DIR / "trees/MountainCar-v0/dqn/imitation-bt.json"
@@ -100,14 +100,14 @@ def test_groot_port_publishes_while_running(xml_files, capsys, monkeypatch):
     _, portable, _ = xml_files
     port = _free_port()
     connected = []
-    original = btcpp_engine.compare_rollouts
+    original = engine.compare_rollouts
 
     def probe(_obs, _actions):  # during the first step, someone connects to the publisher
         if not connected:
             with socket.socket() as s:
                 connected.append(s.connect_ex(("127.0.0.1", port)) == 0)
 
-    monkeypatch.setattr(btcpp_engine, "compare_rollouts",
+    monkeypatch.setattr(engine, "compare_rollouts",
                         lambda task, engine, seeds, on_step=None:
                         original(task, engine, seeds, on_step=probe))
     assert main(["run-btcpp", str(portable), "--task", "MountainCar-v0", "--episodes", "1",

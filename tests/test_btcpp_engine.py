@@ -18,9 +18,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt.bt import NO_DECISION, Action, BehaviorTree, Condition, Selector, Sequence
-from ibt.btcpp import BUILTIN_IDS, action_ids, to_btcpp_xml
-from ibt.btcpp_engine import (
+from ibt.bt.model import NO_DECISION, Action, BehaviorTree, Condition, Selector, Sequence
+from ibt.evaluate.policies import BTPolicy
+from ibt.evaluate.rollouts import final_seeds, rollout
+from ibt.export.btcpp import BUILTIN_IDS, action_ids, to_btcpp_xml
+from ibt.export.drawing import load_json
+from ibt.export.engine import (
     EngineTree,
     agreement_states,
     compare_rollouts,
@@ -29,11 +32,8 @@ from ibt.btcpp_engine import (
     threshold_neighbours,
     ticks_per_second,
 )
-from ibt.evaluate import final_seeds, rollout
-from ibt.export import load_json
 from ibt.paths import DATA_DIR
-from ibt.policies import BTPolicy
-from ibt.tasks import get_task
+from ibt.tasks.catalogue import get_task
 
 ROOT = Path(__file__).resolve().parent.parent
 TREES = sorted(DATA_DIR.glob("trees/*/*/*.json"))

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt import artifacts, cache
-from ibt.artifacts import cache_key, is_cached, legacy_cache_key, load_or_compute
-from ibt.distill import tree_signature
+from ibt.distill.loop import tree_signature
+from ibt.runs import cache, cache_admin
+from ibt.runs.cache import cache_key, is_cached, legacy_cache_key, load_or_compute
 
 
 @pytest.fixture
 def demo(monkeypatch):
-    monkeypatch.setitem(artifacts.CODE_VERSIONS, "demo", 1)
-    return artifacts.CODE_VERSIONS
+    monkeypatch.setitem(cache.CODE_VERSIONS, "demo", 1)
+    return cache.CODE_VERSIONS
 
 
 def _count(calls):
@@ -37,28 +37,28 @@ def test_a_bumped_code_version_misses(tmp_path, demo):
     assert load_or_compute("demo", params, _count(calls), cache_dir=tmp_path,
                            codec="json") == {"n": 2}
     # Expect: the old entry is stale (listed and pruned), the new one current
-    found = {e.status for e in cache.entries(tmp_path)}
+    found = {e.status for e in cache_admin.entries(tmp_path)}
     assert found == {"stale", "current"}
-    stale = [e for e in cache.entries(tmp_path) if e.status == "stale"]
+    stale = [e for e in cache_admin.entries(tmp_path) if e.status == "stale"]
     assert "code version 1 (now 2)" in stale[0].reason
-    assert [e.status for e in cache.prune(tmp_path)] == ["stale"]
-    assert [e.status for e in cache.entries(tmp_path)] == ["current"]
+    assert [e.status for e in cache_admin.prune(tmp_path)] == ["stale"]
+    assert [e.status for e in cache_admin.entries(tmp_path)] == ["current"]
 
 
 def test_an_upgraded_package_misses(tmp_path, demo, monkeypatch):
     calls: list[int] = []
     load_or_compute("demo", {"a": 1}, _count(calls), cache_dir=tmp_path, codec="json")
-    real = artifacts.key_packages()
+    real = cache.key_packages()
     assert set(real) == {"gymnasium", "highway-env", "scikit-learn", "stable-baselines3"}
-    monkeypatch.setattr(artifacts, "key_packages", lambda: {**real, "scikit-learn": "99.0"})
     monkeypatch.setattr(cache, "key_packages", lambda: {**real, "scikit-learn": "99.0"})
+    monkeypatch.setattr(cache_admin, "key_packages", lambda: {**real, "scikit-learn": "99.0"})
     assert not is_cached("demo", {"a": 1}, cache_dir=tmp_path)
-    (entry,) = cache.entries(tmp_path)
+    (entry,) = cache_admin.entries(tmp_path)
     assert entry.status == "stale" and "scikit-learn" in entry.reason
 
 
 def test_unknown_kind_is_an_error(tmp_path):
-    with pytest.raises(KeyError, match=r"add it to ibt\.artifacts\.CODE_VERSIONS"):
+    with pytest.raises(KeyError, match=r"add it to ibt\.runs\.cache\.CODE_VERSIONS"):
         load_or_compute("no-such-kind", {}, dict, cache_dir=tmp_path, codec="json")
 
 
@@ -72,19 +72,19 @@ def test_manifest_recomputes_its_key(tmp_path, demo):
     # a renamed folder is an orphan; a folder without manifest is incomplete
     folder.rename(tmp_path / "demo" / "0000000000000000")
     (tmp_path / "demo" / "1111111111111111").mkdir()
-    assert [e.status for e in cache.entries(tmp_path)] == ["orphan", "incomplete"]
-    assert len(cache.prune(tmp_path, dry_run=True)) == 2
-    assert len(list(cache.entries(tmp_path))) == 2  # a dry run removes nothing
+    assert [e.status for e in cache_admin.entries(tmp_path)] == ["orphan", "incomplete"]
+    assert len(cache_admin.prune(tmp_path, dry_run=True)) == 2
+    assert len(list(cache_admin.entries(tmp_path))) == 2  # a dry run removes nothing
 
 
 def test_reads_log_lists_unread_entries(tmp_path, demo, monkeypatch):
     load_or_compute("demo", {"a": 1}, dict, cache_dir=tmp_path / "c", codec="json")
     load_or_compute("demo", {"a": 2}, dict, cache_dir=tmp_path / "c", codec="json")
-    monkeypatch.setenv(artifacts.READS_ENV, str(tmp_path / "reads"))
+    monkeypatch.setenv(cache.READS_ENV, str(tmp_path / "reads"))
     load_or_compute("demo", {"a": 1}, dict, cache_dir=tmp_path / "c", codec="json")
-    reads = cache.read_log(tmp_path / "reads")
+    reads = cache_admin.read_log(tmp_path / "reads")
     assert reads == {f"demo/{cache_key('demo', {'a': 1})}"}
-    unread = cache.not_current(tmp_path / "c", reads)
+    unread = cache_admin.not_current(tmp_path / "c", reads)
     assert [(e.status, e.key) for e in unread] == [("unread", cache_key("demo", {"a": 2}))]
 
 
@@ -100,7 +100,7 @@ def test_signature_distinguishes_class_labels():
     assert a.predict([[3.0]])[0] != b.predict([[3.0]])[0]
     assert tree_signature(a) != tree_signature(b)
     assert tree_signature(a) == tree_signature(_tree([0, 0, 1, 1]))
-    assert cache._old_signature(a) == cache._old_signature(b)  # the collision that was
+    assert cache_admin._old_signature(a) == cache_admin._old_signature(b)  # the collision that was
 
 
 def _legacy_entry(root, kind, params, payload):
@@ -109,7 +109,7 @@ def _legacy_entry(root, kind, params, payload):
     (folder / "payload.json").write_text(json.dumps(payload))
     (folder / "manifest.json").write_text(json.dumps(
         {"kind": kind, "params": params, "codec": "json",
-         "versions": artifacts.package_versions()}))
+         "versions": cache.package_versions()}))
     return folder
 
 
@@ -119,14 +119,14 @@ def test_migration_rekeys_only_entries_with_current_versions(tmp_path, demo):
     manifest = json.loads((old / "manifest.json").read_text())
     manifest["versions"]["scikit-learn"] = "0.1"
     (old / "manifest.json").write_text(json.dumps(manifest))
-    assert {e.status for e in cache.entries(tmp_path)} == {"legacy"}
-    report = cache.migrate(tmp_path)
+    assert {e.status for e in cache_admin.entries(tmp_path)} == {"legacy"}
+    report = cache_admin.migrate(tmp_path)
     assert report.migrated["demo"] == 1 and len(report.refused) == 1
     assert "scikit-learn" in report.refused[0][1]
     assert not keep.exists() and old.exists()
     # Expect: the migrated entry is a hit under today's key, with the same payload
     assert load_or_compute("demo", {"a": 1}, lambda: {"x": "recomputed"}, cache_dir=tmp_path,
                            codec="json") == {"x": 1}
-    assert cache.migrate(tmp_path).migrated == {}  # a re-run changes nothing more
-    assert cache.main(["stale", "--cache-dir", str(tmp_path)]) == 0
-    assert cache.main(["stale", "--cache-dir", str(tmp_path / "none")]) == 2
+    assert cache_admin.migrate(tmp_path).migrated == {}  # a re-run changes nothing more
+    assert cache_admin.main(["stale", "--cache-dir", str(tmp_path)]) == 0
+    assert cache_admin.main(["stale", "--cache-dir", str(tmp_path / "none")]) == 2

@@ -13,10 +13,10 @@ import time
 import numpy as np
 import pytest
 
-from ibt.artifacts import file_digest
 from ibt.cli import main
-from ibt.distill import DEFAULT_MAX_LEAF_NODES
-from ibt.experts import expert_path
+from ibt.distill.loop import DEFAULT_MAX_LEAF_NODES
+from ibt.experts.expert import expert_path
+from ibt.files import file_digest
 
 TINY = ["--iterations", "2", "--labels", "200", "--selection-episodes", "2", "--quiet"]
 
@@ -151,10 +151,10 @@ def test_checkpoint_hints_train_what_is_missing(tmp_path, capsys, monkeypatch):
     assert main(distill) == 0
     # the committed default path: the hint is the plain train command (here into a scratch
     # data folder standing in for data/)
-    import ibt.experts
+    import ibt.experts.expert
     import ibt.paths
 
-    monkeypatch.setattr(ibt.experts, "DATA_DIR", tmp_path / "data")
+    monkeypatch.setattr(ibt.experts.expert, "DATA_DIR", tmp_path / "data")
     monkeypatch.setattr(ibt.paths, "DATA_DIR", tmp_path / "data")
     default = ["distill", "CartPole-v1", "ppo", "-o", str(tmp_path / "d.joblib"),
                *CHEAP["distill"]]
@@ -176,12 +176,12 @@ def test_a_checkpoint_of_another_algorithm_says_which(tmp_path, capsys):
 
 def test_library_hints_are_commands_that_work(tmp_path, capsys, monkeypatch):
     import ibt.paths
-    import ibt.tasks
-    from ibt.tasks import get_task
-    from ibt.training import expert_return
+    import ibt.tasks.catalogue
+    from ibt.experts.training import expert_return
+    from ibt.tasks.catalogue import get_task
 
     monkeypatch.setattr(ibt.paths, "DATA_DIR", tmp_path / "data")
-    monkeypatch.setattr(ibt.tasks, "DATA_DIR", tmp_path / "data")
+    monkeypatch.setattr(ibt.tasks.catalogue, "DATA_DIR", tmp_path / "data")
     with pytest.raises(LookupError) as missing_random:
         get_task("CartPole-v1").random_return()
     (hint,) = _hints(str(missing_random.value))

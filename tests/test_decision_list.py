@@ -13,8 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.bt import Action, Selector, decide_batch, iterate
-from ibt.decision_list import (
+from ibt.bt.model import Action, Selector, decide_batch, iterate
+from ibt.synth.decision_list import (
     MAX_WORK,
     METHOD,
     Factorer,
@@ -30,9 +30,9 @@ from ibt.decision_list import (
     simplify,
     size_table,
 )
-from ibt.rules import Literal, leaf_witnesses
-from ibt.synthesis import imitation_bt, verify
-from ibt.tasks import Task
+from ibt.synth.imitation import imitation_bt, verify
+from ibt.synth.rules import Literal, leaf_witnesses
+from ibt.tasks.catalogue import Task
 
 N_FEATURES = 5
 TOY = Task(name="toy", gym_id="none", feature_names=tuple(f"f{i}" for i in range(N_FEATURES)),
@@ -211,7 +211,7 @@ def _cpu_seconds() -> float:
 def test_time_limit_holds_on_the_largest_committed_trees(task, algo, seed):
     """The slowest committed trees (32 leaves and 4 actions; 8 actions): well inside 10 s of
     one core and inside the work budget, so neither the safety net nor the budget decides."""
-    from ibt.tasks import get_task
+    from ibt.tasks.catalogue import get_task
 
     tree = _committed_tree(task, algo, seed)
     start = _cpu_seconds()
@@ -243,7 +243,7 @@ def test_cli_synthesizes_a_decision_list_bt(tmp_path, capsys):
 
 
 def _tick_document(node: dict, x: np.ndarray, decided: list[int]) -> bool:
-    """The README's ticking rule, on the JSON document alone (no ibt.bt): a condition compares
+    """The README's ticking rule, on the JSON document alone (no ibt.bt.model): a condition compares
     float64(float32(obs[feature])); the first action ticked is the decision."""
     kind = node["type"]
     if kind == "condition":
@@ -268,7 +268,7 @@ def test_committed_decision_list_files_decide_as_their_trees():
 
     import ibt
     from ibt.paths import DATA_DIR
-    from ibt.synthesis import verification_states
+    from ibt.synth.imitation import verification_states
 
     synthesis = pd.read_csv(DATA_DIR / "results" / "synthesis.csv")
     rows = synthesis[(synthesis.method == METHOD) & synthesis.seed_best]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ibt import schedules
-from ibt.distill import METHODS, DistillConfig, _signature, distill, mix
-from ibt.evaluate import final_seeds, rollout, selection_seeds
+from ibt.distill import schedules
+from ibt.distill.loop import METHODS, DistillConfig, _signature, distill, mix
+from ibt.evaluate.rollouts import final_seeds, rollout, selection_seeds
 
 
 def test_schedule_values_are_exact():
@@ -100,7 +100,7 @@ def test_budget_runs_whole_episodes():
 
 def test_task_budgets_scale_the_profile_settings_alike_for_every_method():
     import ibt
-    from ibt.pipeline import distill_config
+    from ibt.runs.pipeline import distill_config
 
     paper = ibt.config("paper")
     for method in METHODS:

@@ -14,9 +14,18 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ibt.bt import OPS, Action, BehaviorTree, Condition, Fallback, Inverter, Selector, Sequence
-from ibt.bt import tick as tick_bt
-from ibt.export import (
+from ibt.bt.model import (
+    OPS,
+    Action,
+    BehaviorTree,
+    Condition,
+    Fallback,
+    Inverter,
+    Selector,
+    Sequence,
+)
+from ibt.bt.model import tick as tick_bt
+from ibt.export.drawing import (
     compose,
     deciding_condition,
     draw_bt,
@@ -28,14 +37,14 @@ from ibt.export import (
     save_drawing,
     to_graphviz,
 )
-from ibt.paths import DATA_DIR, FIGURES_DIR
-from ibt.readable import (
+from ibt.export.readable import (
     MAX_ASPECT,
     MIN_TEXT_PT,
     README_WIDTH_PX,
     measure,
     text_pt_at_readme_width,
 )
+from ibt.paths import DATA_DIR, FIGURES_DIR
 
 matplotlib.use("Agg")
 pytestmark = pytest.mark.skipif(not __import__("shutil").which("dot"), reason="needs dot")
@@ -196,7 +205,7 @@ def _summary(values, lows, highs, statuses=None):
 
 
 def test_retention_limits_never_clip_an_interval():
-    from ibt import plots
+    from ibt.report import plots
 
     fig = plots.retention_grid(_summary([-15, 90, 130], [-60, 80, 100], [5, 95, 180]))
     low, high = fig.axes[0].get_ylim()
@@ -205,7 +214,7 @@ def test_retention_limits_never_clip_an_interval():
 
 
 def test_excluded_experts_are_marked_and_error_bars_named():
-    from ibt import plots
+    from ibt.report import plots
 
     fig = plots.retention_grid(_summary([50, 90], [40, 80], [60, 95], {0: "excluded"}))
     texts = [t.get_text() for t in fig.findobj(matplotlib.text.Text)]
@@ -215,7 +224,7 @@ def test_excluded_experts_are_marked_and_error_bars_named():
 
 
 def test_unknown_and_new_methods_get_colours():
-    from ibt import plots
+    from ibt.report import plots
 
     frame = pd.DataFrame({"task": ["T"] * 3, "expert": ["dqn"] * 3,
                           "method": ["decision-list", "imitation-bt+", "brand-new"],
@@ -228,7 +237,7 @@ def test_unknown_and_new_methods_get_colours():
 
 
 def test_saved_figures_are_stamped(tmp_path):
-    from ibt import plots
+    from ibt.report import plots
 
     fig = plots.frozenlake_map(np.full((64, 64, 3), 200, np.uint8), [0, 4, 8])
     png = plots.save_figure(fig, tmp_path / "lake", formats=("png",))[0]

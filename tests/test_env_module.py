@@ -20,8 +20,8 @@ import joblib
 import pytest
 
 from ibt.cli import main
-from ibt.distill import DEFAULT_MAX_LEAF_NODES
-from ibt.tasks import TASKS
+from ibt.distill.loop import DEFAULT_MAX_LEAF_NODES
+from ibt.tasks.catalogue import TASKS
 
 TINY = ["--iterations", "2", "--labels", "100", "--selection-episodes", "2", "--quiet"]
 
@@ -61,7 +61,7 @@ gym.register(id="NamedCorridor-v0", entry_point=f"{__name__}:Corridor", max_epis
 # the optional part: a module that also registers an ibt task, for readable names
 NAMED_SOURCE = '''
 import ibt_user_corridor  # registers the environments
-from ibt.tasks import Task, register_task
+from ibt.tasks.catalogue import Task, register_task
 
 register_task(Task(name="NamedCorridor-v0", gym_id="NamedCorridor-v0",
                    feature_names=("position", "speed"), action_names=("left", "right"),

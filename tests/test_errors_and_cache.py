@@ -7,9 +7,9 @@ import shutil
 import pytest
 
 import ibt
-from ibt.artifacts import cache_key, is_cached, load_or_compute
-from ibt.distill import DistillConfig
-from ibt.experts import expert_path, load_expert
+from ibt.distill.loop import DistillConfig
+from ibt.experts.expert import expert_path, load_expert
+from ibt.runs.cache import cache_key, is_cached, load_or_compute
 
 
 def test_unknown_task_names_the_closest_ones():
@@ -59,10 +59,10 @@ def test_mismatched_expert_is_refused(tmp_path):
 @pytest.fixture
 def demo_kind(monkeypatch):
     """A cache kind of the tests' own, at code version 1."""
-    from ibt import artifacts
+    from ibt.runs import cache
 
-    monkeypatch.setitem(artifacts.CODE_VERSIONS, "demo", 1)
-    return artifacts.CODE_VERSIONS
+    monkeypatch.setitem(cache.CODE_VERSIONS, "demo", 1)
+    return cache.CODE_VERSIONS
 
 
 def test_cache_hit_miss_and_atomicity(tmp_path, demo_kind):

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 import ibt
-from ibt.experiments import Cell, bootstrap_ci, grid, run_grid, summarise
+from ibt.runs.grid import Cell, bootstrap_ci, grid, run_grid, summarise
 
 TINY = {"n_iterations": 2, "labels_per_iteration": 100, "selection_episodes": 2}
 
@@ -61,7 +61,7 @@ def test_local_and_dask_grids_give_identical_rows(tmp_path):
 
 
 def test_synthesize_grid_verifies_every_bt_and_rolls_out_the_seed_best(tmp_path):
-    from ibt.experiments import node_table, retention_table, synthesize_grid
+    from ibt.runs.grid import node_table, retention_table, synthesize_grid
 
     cfg = ibt.config("smoke", cache_dir=tmp_path / "cache", data_dir=tmp_path / "data")
     cells = grid(["FrozenLake-v1"], ["dqn"], ["bc", "imitation-bt"], [0, 1])
@@ -76,7 +76,7 @@ def test_synthesize_grid_verifies_every_bt_and_rolls_out_the_seed_best(tmp_path)
     assert (best.evaluated == "BT rollout").all()
     # every written BT decides exactly as the tree it came from (checked here, not read from
     # the table's `equivalent` column, which holds True whenever a row exists)
-    from ibt.synthesis import verify
+    from ibt.synth.imitation import verify
 
     for row in best.itertuples():
         bt = ibt.load_json(cfg.data_dir / "trees" / "FrozenLake-v1" / "dqn" / f"{row.method}.json")

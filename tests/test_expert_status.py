@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 
-from ibt import training
+from ibt.experts import training
 
 
 def _fake_expert(monkeypatch, act):

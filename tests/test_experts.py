@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ibt.experts import HYPERPARAMS, expert_path, load_expert
+from ibt.experts.expert import HYPERPARAMS, expert_path, load_expert
 from ibt.paths import DATA_DIR
-from ibt.tasks import TASKS, get_task
+from ibt.tasks.catalogue import TASKS, get_task
 
 MANIFEST = pd.read_csv(DATA_DIR / "experts" / "manifest.csv")
 COMMITTED = [(t, a) for t, a in zip(MANIFEST.task, MANIFEST.algo, strict=True)
@@ -49,7 +49,7 @@ def test_random_baselines_cover_every_task():
 
 @pytest.mark.slow
 def test_training_is_deterministic(tmp_path):
-    from ibt.experts import train_expert
+    from ibt.experts.expert import train_expert
 
     a, b = tmp_path / "a.zip", tmp_path / "b.zip"
     for path in (a, b):
@@ -74,16 +74,16 @@ def test_training_leaves_no_scratch_folders(tmp_path, monkeypatch):
     """SB3's default logger and the checkpoint callback must not litter the temp folder."""
     import tempfile
 
-    from ibt import experts
+    from ibt.experts import expert
 
     scratch = tmp_path / "tmp"
     scratch.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))
     # evaluate checkpoints even on this tiny budget, so the callback's folder is exercised
-    monkeypatch.setattr(experts, "MIN_STEPS_FOR_CHECKPOINTS", 0)
-    monkeypatch.setattr(experts, "EVAL_POINTS", 1)
-    monkeypatch.setattr(experts, "EVAL_EPISODES", 1)
-    experts.train_expert("CartPole-v1", "dqn", tmp_path / "dqn.zip", timesteps=64, progress=False)
+    monkeypatch.setattr(expert, "MIN_STEPS_FOR_CHECKPOINTS", 0)
+    monkeypatch.setattr(expert, "EVAL_POINTS", 1)
+    monkeypatch.setattr(expert, "EVAL_EPISODES", 1)
+    expert.train_expert("CartPole-v1", "dqn", tmp_path / "dqn.zip", timesteps=64, progress=False)
     assert (tmp_path / "dqn.zip").exists()
     ours = [p.name for p in scratch.iterdir() if p.name.startswith(("SB3-", "ibt-"))]
     assert ours == []

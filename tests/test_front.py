@@ -6,10 +6,10 @@ import pandas as pd
 import pytest
 
 import ibt
-from ibt import front
-from ibt.distill import task_budget
-from ibt.evaluate import retention_norm
-from ibt.refine import REFINE_BUDGETS
+from ibt.distill.loop import task_budget
+from ibt.evaluate.rollouts import retention_norm
+from ibt.refine.by_return import REFINE_BUDGETS
+from ibt.runs import front
 
 
 def test_sweep_points_add_the_grid_budget_and_mark_it_as_the_grid_run():
@@ -92,8 +92,8 @@ def test_smoke_refinement_budget_is_tiny_and_keeps_the_task_stages():
 
 
 def test_report_part_renders_targets_and_the_front(tmp_path):
-    from ibt import report
-    from ibt.stats import Results
+    from ibt.report import markdown
+    from ibt.report.stats import Results
 
     results = tmp_path / "results"
     results.mkdir()
@@ -103,12 +103,12 @@ def test_report_part_renders_targets_and_the_front(tmp_path):
     table.to_csv(results / "front.csv", index=False)
     front.target_table(table, {"MountainCar-v0": 4}).to_csv(results / "front_targets.csv",
                                                             index=False)
-    text = report._front(Results(tmp_path))
+    text = markdown._front(Results(tmp_path))
     assert "| MountainCar-v0 | dqn | >= 98 % with <= 9 nodes | 4 | 3 | 98.2 (97.0) | 9.0 | met |" \
         in text
     assert "| MountainCar-v0 | imitation-bt+ | 9: 98.2 | 98.2 (9) |" in text
     assert "| LunarLander-v3 | dqn |" in text and "not measured" in text
-    assert report._front(Results(tmp_path / "nothing")) is None
+    assert markdown._front(Results(tmp_path / "nothing")) is None
 
 
 def test_front_axes_have_plain_few_ticks():
@@ -118,7 +118,7 @@ def test_front_axes_have_plain_few_ticks():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ibt.plots import _plain_log_ticks
+    from ibt.report.plots import _plain_log_ticks
 
     for low, high in [(4, 500), (38, 49), (5, 11), (2, 30)]:
         fig, ax = plt.subplots()

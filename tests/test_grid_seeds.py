@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import ibt
-from ibt import experiments
+from ibt.runs import grid
 
 
 def test_highway_keeps_three_seeds_the_others_five():
-    cells = experiments.seed_budget(experiments.grid(
-        ["CartPole-v1", "highway-fast-v0"], ["dqn"], ["bc"], range(experiments.PAPER_SEEDS)))
+    cells = grid.seed_budget(grid.grid(
+        ["CartPole-v1", "highway-fast-v0"], ["dqn"], ["bc"], range(grid.PAPER_SEEDS)))
     seeds = {t: sorted(c.seed for c in cells if c.task == t)
              for t in ("CartPole-v1", "highway-fast-v0")}
     assert seeds == {"CartPole-v1": [0, 1, 2, 3, 4], "highway-fast-v0": [0, 1, 2]}
@@ -16,7 +16,7 @@ def test_highway_keeps_three_seeds_the_others_five():
 
 def test_uncached_lists_the_runs_not_in_the_cache(tmp_path):
     cfg = ibt.config("smoke", cache_dir=tmp_path / "cache")
-    cells = experiments.grid(["FrozenLake-v1"], ["dqn"], ["bc"], [0, 1])
-    assert experiments.uncached(cfg, cells) == cells
-    experiments.run_grid(cfg, cells[:1], n_jobs=1)
-    assert experiments.uncached(cfg, cells) == cells[1:]
+    cells = grid.grid(["FrozenLake-v1"], ["dqn"], ["bc"], [0, 1])
+    assert grid.uncached(cfg, cells) == cells
+    grid.run_grid(cfg, cells[:1], n_jobs=1)
+    assert grid.uncached(cfg, cells) == cells[1:]

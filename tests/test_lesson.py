@@ -6,16 +6,17 @@ import numpy as np
 import pytest
 
 import ibt
-from ibt import lesson, schedules
-from ibt.bt import Action, BehaviorTree, Selector, Sequence
-from ibt.distill import DistillConfig, distill
-from ibt.evaluate import final_seeds, rollout
-from ibt.export import load_json
+from ibt.bt.model import Action, BehaviorTree, Selector, Sequence
+from ibt.distill import schedules
+from ibt.distill.loop import DistillConfig, distill
+from ibt.evaluate.policies import RandomPolicy
+from ibt.evaluate.rollouts import final_seeds, rollout
+from ibt.export.drawing import load_json
 from ibt.paths import DATA_DIR
-from ibt.policies import RandomPolicy
-from ibt.rules import leaf_paths
-from ibt.synthesis import imitation_bt
-from ibt.tasks import Task, get_task
+from ibt.synth.imitation import imitation_bt
+from ibt.synth.rules import leaf_paths
+from ibt.tasks.catalogue import Task, get_task
+from ibt.views import lesson
 from tests.conftest import fit_tree
 
 DELIVERY_BT = DATA_DIR / "trees" / "PackageDelivery-v0" / "dqn" / "imitation-bt.json"

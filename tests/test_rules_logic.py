@@ -6,9 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt.logic import Variables, espresso_cubes, minimise
-from ibt.policies import CompiledTree
-from ibt.rules import (
+from ibt.evaluate.policies import CompiledTree
+from ibt.synth.logic import Variables, espresso_cubes, minimise
+from ibt.synth.rules import (
     Literal,
     action_template_library,
     dnf_holds,

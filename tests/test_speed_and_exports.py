@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ibt.bt import Action, BehaviorTree, Condition, Selector, Sequence
-from ibt.export import drawing_elements, require_dot, to_graphviz, trace_graph
-from ibt.speed import NotCompilable, compile_python
-from ibt.synthesis import imitation_bt
+from ibt.bt.model import Action, BehaviorTree, Condition, Selector, Sequence
+from ibt.evaluate.speed import NotCompilable, compile_python
+from ibt.export.drawing import drawing_elements, require_dot, to_graphviz, trace_graph
+from ibt.synth.imitation import imitation_bt
 from tests.conftest import fit_tree
 from tests.test_synthesis import TOY
 
@@ -49,7 +49,7 @@ def test_small_batches_walk_the_tree_exactly_as_sklearn():
     import numpy as np
     from sklearn.tree import DecisionTreeClassifier
 
-    from ibt.policies import SMALL_BATCH, CompiledTree
+    from ibt.evaluate.policies import SMALL_BATCH, CompiledTree
 
     rng = np.random.default_rng(1)
     x = rng.normal(size=(3000, 5)).astype(np.float32)
@@ -67,7 +67,7 @@ def test_small_batches_walk_the_tree_exactly_as_sklearn():
 
 
 def test_executors_agree_on_random_states_and_catch_a_wrong_bt():
-    from ibt.speed import executors_agree
+    from ibt.evaluate.speed import executors_agree
 
     tree, _ = fit_tree(leaves=12, n_actions=3, seed=3)
     bt = imitation_bt(tree, TOY).bt

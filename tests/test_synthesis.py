@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt.bt import Action, Selector, Sequence
-from ibt.synthesis import NotEquivalentError, imitation_bt, verify
-from ibt.tasks import Task, get_task
+from ibt.bt.model import Action, Selector, Sequence
+from ibt.synth.imitation import NotEquivalentError, imitation_bt, verify
+from ibt.tasks.catalogue import Task, get_task
 from tests.conftest import fit_tree
 
 TOY = Task(name="toy", gym_id="none", feature_names=("f0", "f1", "f2", "f3"),

@@ -12,11 +12,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt import widgets
-from ibt.bt import Action, BehaviorTree, Condition, Selector, Sequence
-from ibt.export import load_json
+from ibt.bt.model import Action, BehaviorTree, Condition, Selector, Sequence
+from ibt.export.drawing import load_json
 from ibt.paths import DATA_DIR
-from ibt.tasks import get_task
+from ibt.tasks.catalogue import get_task
+from ibt.views import widgets
 
 CARTPOLE_BT = DATA_DIR / "trees" / "CartPole-v1" / "ppo" / "imitation-bt.json"
 AXES = ("pole_angle", "pole_angular_velocity")
@@ -153,9 +153,9 @@ def test_state_explorer_static_fallback(batch_env, cartpole_bt, capsys):
 
 def fake_view(schedule: str, leaves: int):
     """A ScheduleView from a small synthetic tree of ``leaves`` leaves."""
-    from ibt.lesson import ScheduleView
-    from ibt.synthesis import imitation_bt
-    from ibt.tasks import Task
+    from ibt.synth.imitation import imitation_bt
+    from ibt.tasks.catalogue import Task
+    from ibt.views.lesson import ScheduleView
     from tests.conftest import fit_tree
 
     task = Task("Synthetic", "none", ("a", "b", "c", "d"), ("u", "v", "w"), (-1,) * 4, (1,) * 4)
@@ -196,7 +196,7 @@ def test_schedule_explorer_static_fallback(batch_env):
 
 # ------------------------------------------------------------------ the lesson's figures
 def test_diff_figure_counts_every_cell():
-    from ibt.lesson import add_guard, all_states, decision_diff, guard
+    from ibt.views.lesson import add_guard, all_states, decision_diff, guard
 
     bt = load_json(DATA_DIR / "trees" / "PackageDelivery-v0" / "dqn" / "imitation-bt.json")
     edited = add_guard(bt, guard(bt, [["battery", "<=", 4]], "go_charger"))
@@ -242,7 +242,7 @@ def test_scrub_drops_widget_views_and_state(tmp_path):
 def test_iteration_and_shift_figures():
     from sklearn.tree import DecisionTreeClassifier
 
-    from ibt.lesson import OpenIteration
+    from ibt.views.lesson import OpenIteration
 
     task = get_task("MountainCar-v0")
     rng = np.random.default_rng(0)

@@ -1,0 +1,1 @@
+"""The Behavior Tree model every step downstream consumes: nodes, executors and node counts."""

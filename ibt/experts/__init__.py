@@ -1,0 +1,1 @@
+"""Stable-Baselines3 experts: loading a checkpoint as an `Expert`, training and recording them."""

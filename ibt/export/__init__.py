@@ -1,0 +1,2 @@
+"""Behavior Trees out of Python: drawings (graphviz), JSON files and BehaviorTree.CPP XML
+and engine."""

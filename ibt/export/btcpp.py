@@ -1,0 +1,274 @@
+"""Export a :class:`ibt.bt.model.BehaviorTree` to BehaviorTree.CPP v4 XML (and read it back).
+
+Two flavours, both read back by :func:`from_btcpp_xml`:
+
+* ``portable`` (the default) runs in stock BehaviorTree.CPP 4.x: the user registers only the
+  actions. A condition is the engine's built-in ``ScriptCondition`` over a blackboard entry named
+  after the feature, ``<ScriptCondition code="velocity &gt; 0.0023324477951973677"
+  name="velocity > 0.002332"/>``: ``code`` is exact (the threshold is ``repr`` of the double, so it
+  round-trips), ``name`` is a readable label (``carrying == heavy`` for categorical features).
+  Before each tick the caller sets every blackboard key (:func:`blackboard_keys`) to
+  ``double(float(obs[i]))``, the float32-rounded observation as a double: that is this package's
+  tick rule, so the engine then decides exactly as :meth:`BehaviorTree.decide`.
+* ``check-feature`` keeps the conditions as one custom node type,
+  ``<Condition ID="CheckFeature" feature="2" op="<=" threshold="0.05"/>``, which the user must
+  implement in C++ (Python-registered nodes cannot declare its ports).
+
+In both, ``Selector`` and ``Fallback`` -> ``<Fallback>`` (a Selector, the root of a synthesised
+policy, carries ``name="Selector"`` so that reading back restores it), ``Sequence`` ->
+``<Sequence>``, ``Inverter`` -> ``<Inverter>``, and each action is its own port-less node type,
+``<Action ID="push_right"/>``, declared in the ``<TreeNodesModel>`` that Groot2 reads. The file
+names no ``main_tree_to_execute`` (Groot2 drops it on save); it holds one tree, which the engine
+runs. An XML comment at the top lists the blackboard keys.
+
+Names become identifiers deterministically: every character other than ASCII letters, digits and
+``_`` becomes ``_``; a feature key that does not start with a letter, or starts with ``true`` or
+``false`` (BehaviorTree.CPP's script parser reads those as the boolean literals and fails), gets
+the prefix ``f_``; an action ID that starts with a digit gets a leading ``_``, and one that names
+a built-in node gets its index appended; a name that collides with an earlier one gets
+``_<index>`` appended (feature or action index) until unique.
+
+Categorical features keep their exact threshold comparison in ``code`` (``carrying &gt; 1.5``):
+the engine's script enums must be registered in C++ (``registerScriptingEnum``; behaviortreepy
+0.1.4 does not expose it), and the XML must load with only the actions registered. The readable
+form is the ``name``. ``ElementTree`` escapes ``<`` and ``>`` in attribute values.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence as Seq
+
+import numpy as np
+
+from ibt.bt.model import (
+    Action,
+    BehaviorTree,
+    Condition,
+    Fallback,
+    Inverter,
+    Node,
+    Selector,
+    Sequence,
+)
+
+FLAVOURS = ("portable", "check-feature")
+CONDITION_ID = "CheckFeature"
+SCRIPT_CONDITION = "ScriptCondition"
+SELECTOR_NAME = "Selector"
+_PORTS = (
+    ("feature", "int", "index of the feature in the observation vector"),
+    ("op", "std::string", "comparison: <= or >"),
+    ("threshold", "double", "succeed iff double(float(obs[feature])) op threshold"),
+)
+# node IDs BehaviorTree.CPP 4 registers itself (checked with behaviortreepy 0.1.4: registering
+# an action under any of them fails), and the XML's own tag names
+BUILTIN_IDS = frozenset("""
+    AlwaysFailure AlwaysSuccess AsyncFallback AsyncSequence Delay Fallback ForceFailure
+    ForceSuccess IfThenElse Inverter KeepRunningUntilFailure LoopBool LoopDouble LoopInt
+    LoopString Parallel ParallelAll Precondition ReactiveFallback ReactiveSequence Repeat
+    RetryUntilSuccessful RunOnce Script ScriptCondition Sequence SequenceWithMemory
+    SetBlackboard SkipUnlessUpdated Sleep SubTree Switch2 Switch3 Switch4 Switch5 Switch6
+    Timeout UnsetBlackboard WaitValueUpdate WasEntryUpdated WhileDoElse
+    Action Condition Control Decorator BehaviorTree TreeNodesModel root
+    """.split()) | {CONDITION_ID}
+_CODE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>)\s*(\S+)\s*$")
+_XML_DECLARATION = '<?xml version="1.0" encoding="UTF-8"?>\n'
+
+
+def _identifier(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_]", "_", name)
+
+
+def _unique(ident: str, index: int, taken: list[str]) -> str:
+    while ident in taken:
+        ident = f"{ident}_{index}"
+    return ident
+
+
+def blackboard_keys(feature_names: Seq[str]) -> list[str]:
+    """The blackboard key of each feature: a script identifier, unique, close to the name."""
+    keys: list[str] = []
+    for index, name in enumerate(feature_names):
+        key = _identifier(name)
+        if not key[:1].isalpha() or key.startswith(("true", "false")):
+            key = "f_" + key
+        keys.append(_unique(key, index, keys))
+    return keys
+
+
+def action_ids(action_names: Seq[str]) -> list[str]:
+    """BehaviorTree.CPP node IDs for the actions: identifiers, unique, no built-in node's ID."""
+    ids: list[str] = []
+    for index, name in enumerate(action_names):
+        ident = _identifier(name) or "action"
+        if ident[0].isdigit():
+            ident = "_" + ident
+        if ident in BUILTIN_IDS:
+            ident = f"{ident}_{index}"
+        ids.append(_unique(ident, index, ids))
+    return ids
+
+
+def threshold_text(threshold: float) -> str:
+    """The threshold as the engine parses it back to the same double (``repr``).
+
+    ``std::stod`` rejects subnormal doubles, so one of those becomes the largest float32 value
+    at or below it: ``x op t`` and ``x op that`` agree for every float32 ``x``.
+    """
+    t = float(threshold)
+    if not math.isfinite(t):
+        raise ValueError(f"threshold {t} is not finite; BehaviorTree.CPP scripts need a number")
+    if t != 0.0 and abs(t) < sys.float_info.min:
+        below = np.float32(t)
+        if float(below) > t:
+            below = np.nextafter(below, np.float32(-np.inf))
+        t = float(below)
+    return repr(t)
+
+
+def condition_code(node: Condition, keys: Seq[str]) -> str:
+    """The ``ScriptCondition`` code of a condition: ``velocity > 0.0023324477951973677``."""
+    return f"{keys[node.feature]} {node.op} {threshold_text(node.threshold)}"
+
+
+def _element(node: Node, bt: BehaviorTree, ids: list[str], keys: list[str],
+             flavour: str) -> ET.Element:
+    if isinstance(node, Condition):
+        if flavour == "portable":
+            return ET.Element(SCRIPT_CONDITION, {"code": condition_code(node, keys),
+                                                 "name": bt.label(node)})
+        return ET.Element("Condition", {
+            "ID": CONDITION_ID, "name": bt.label(node), "feature": str(node.feature),
+            "op": node.op, "threshold": threshold_text(node.threshold)})
+    if isinstance(node, Action):
+        return ET.Element("Action", {"ID": ids[node.action]})
+    attrib: dict[str, str] = {}
+    if isinstance(node, Inverter):
+        tag = "Inverter"
+    elif isinstance(node, Sequence):
+        tag = "Sequence"
+    elif isinstance(node, Selector):
+        tag, attrib = "Fallback", {"name": SELECTOR_NAME}
+    else:
+        tag = "Fallback"
+    element = ET.Element(tag, attrib)
+    element.extend(_element(child, bt, ids, keys, flavour) for child in node.children)
+    return element
+
+
+def _keys_comment(bt: BehaviorTree, keys: list[str]) -> str:
+    lines = [f"    {key} = double(float(obs[{i}]))  ({name})"
+             for i, (key, name) in enumerate(zip(keys, bt.feature_names, strict=True))]
+    text = ("\n  Blackboard keys: set each before a tick, as the float32 observation widened "
+            "to double.\n" + "\n".join(lines) + "\n  Actions: " + ", ".join(
+                f"{ident} = {i}" for i, ident in enumerate(action_ids(bt.action_names))) + "\n  ")
+    return text.replace("--", "- -")  # "--" may not appear inside an XML comment
+
+
+def to_btcpp_xml(bt: BehaviorTree, tree_id: str = "MainTree", flavour: str = "portable") -> str:
+    """The BehaviorTree.CPP v4 XML of ``bt`` (pretty printed), with its node model."""
+    if flavour not in FLAVOURS:
+        raise ValueError(f"unknown BehaviorTree.CPP flavour {flavour!r}; expected one of "
+                         f"{FLAVOURS}")
+    ids = action_ids(bt.action_names)
+    keys = blackboard_keys(bt.feature_names)
+    root = ET.Element("root", {"BTCPP_format": "4"})
+    if flavour == "portable":
+        root.append(ET.Comment(_keys_comment(bt, keys)))
+    tree = ET.SubElement(root, "BehaviorTree", {"ID": tree_id})
+    tree.append(_element(bt.root, bt, ids, keys, flavour))
+    model = ET.SubElement(root, "TreeNodesModel")
+    if flavour == "check-feature":
+        condition = ET.SubElement(model, "Condition", {"ID": CONDITION_ID})
+        for name, kind, description in _PORTS:
+            port = ET.SubElement(condition, "input_port", {"name": name, "type": kind})
+            port.text = description
+    for ident in ids:
+        ET.SubElement(model, "Action", {"ID": ident})
+    ET.indent(root, space="  ")
+    return _XML_DECLARATION + ET.tostring(root, encoding="unicode") + "\n"
+
+
+# ------------------------------------------------------------------------------- reading
+def _script_condition(code: str, feature_of: dict[str, int]) -> Condition:
+    match = _CODE.match(code)
+    if not match:
+        raise ValueError(f"unsupported ScriptCondition code {code!r}; expected "
+                         "'KEY <= NUMBER' or 'KEY > NUMBER' as to_btcpp_xml writes")
+    key, op, number = match.groups()
+    if key not in feature_of:
+        raise ValueError(f"a ScriptCondition reads the blackboard key {key!r}, which is none of "
+                         f"this task's features (keys: {', '.join(feature_of)}); is the XML "
+                         "from another task?")
+    try:
+        threshold = float(number)
+    except ValueError:
+        raise ValueError(f"ScriptCondition {code!r}: {number!r} is not a number") from None
+    return Condition(feature_of[key], op, threshold)
+
+
+def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, int]) -> Node:
+    tag = element.tag
+    ident = element.get("ID", "") if tag in ("Action", "Condition") else tag
+    if ident == SCRIPT_CONDITION:
+        return _script_condition(element.get("code", ""), feature_of)
+    if ident == CONDITION_ID:
+        return Condition(int(element.attrib["feature"]), element.attrib["op"],
+                         float(element.attrib["threshold"]))
+    if tag == "Condition":
+        raise ValueError(f"unknown condition node {ident!r}; expected {SCRIPT_CONDITION!r} or "
+                         f"{CONDITION_ID!r}")
+    if ident in action_of:  # <Action ID="go"/>, or Groot2's compact <go/>
+        return Action(action_of[ident])
+    if tag == "Action":
+        raise ValueError(f"unknown action ID {ident!r}; this task's actions are "
+                         f"{', '.join(action_of)}")
+    children = [_node(child, action_of, feature_of) for child in element]
+    if tag == "Inverter":
+        if len(children) != 1:
+            raise ValueError(f"an Inverter has exactly one child, got {len(children)}")
+        return Inverter(children[0])
+    if tag == "Sequence":
+        return Sequence(tuple(children))
+    if tag == "Fallback":
+        cls = Selector if element.get("name") == SELECTOR_NAME else Fallback
+        return cls(tuple(children))
+    raise ValueError(f"unsupported BehaviorTree.CPP node <{tag}>; expected Fallback, Sequence, "
+                     f"Inverter, {SCRIPT_CONDITION}, {CONDITION_ID} or an action of this task "
+                     f"({', '.join(action_of)})")
+
+
+def from_btcpp_xml(text: str, feature_names: Seq[str], action_names: Seq[str],
+                   tree_id: str | None = None,
+                   value_labels: tuple[tuple[int, tuple[str, ...]], ...] = ()) -> BehaviorTree:
+    """Read XML written by :func:`to_btcpp_xml` (either flavour) back into a BehaviorTree.
+
+    ``tree_id`` defaults to the file's ``main_tree_to_execute``, else its only tree. Raises
+    ``ValueError`` naming the problem for XML of another task (an unknown blackboard key or
+    action ID) or nodes this package does not write. ``value_labels`` (the task's, or the
+    original tree's) only make the read tree's labels readable again.
+    """
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as err:
+        raise ValueError(f"not well-formed XML ({err})") from None
+    wanted = tree_id or root.get("main_tree_to_execute")
+    trees = [t for t in root.findall("BehaviorTree") if wanted is None or t.get("ID") == wanted]
+    if not trees:
+        raise ValueError(f"no <BehaviorTree ID={wanted!r}> in the XML" if wanted else
+                         "no <BehaviorTree> in the XML")
+    if len(trees) > 1:
+        raise ValueError(f"the XML holds {len(trees)} trees "
+                         f"({', '.join(str(t.get('ID')) for t in trees)}); pass tree_id")
+    if len(trees[0]) != 1:
+        raise ValueError(f"a <BehaviorTree> has exactly one root node, got {len(trees[0])}")
+    action_of = {ident: i for i, ident in enumerate(action_ids(action_names))}
+    feature_of = {key: i for i, key in enumerate(blackboard_keys(feature_names))}
+    bt = BehaviorTree(_node(trees[0][0], action_of, feature_of),
+                      tuple(feature_names), tuple(action_names), tuple(value_labels))
+    bt.validate()
+    return bt

@@ -1,0 +1,418 @@
+"""Run exported BTs in BehaviorTree.CPP itself (through behaviortreepy) and compare with ``ibt``.
+
+:class:`EngineTree` loads the portable XML of :mod:`ibt.export.btcpp` in the stock engine with only
+the task's actions registered, fills the blackboard from a feature vector (``double(float(x))``
+per key) and ticks once; the decision is the first action the engine ticked. On top of it:
+
+* :func:`agreement_states`: the states a BT is checked on: one inside every leaf region of the BT
+  (the boxes on which its decision is constant, :func:`leaf_regions`), the float32 values just
+  below, at and above every threshold, random states from the task's box, and the whole state
+  space of discrete-state tasks;
+* :func:`engine_rollout`: episodes whose every decision is a BehaviorTree.CPP tick, and
+  :func:`compare_rollouts`, the same seeds with the Python BT beside it;
+* :func:`ticks_per_second`: the engine against ``ibt``'s executor, one state per tick.
+"""
+
+from __future__ import annotations
+
+import time
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import behaviortreepy as btpy
+import numpy as np
+
+from ibt.bt.model import (
+    NO_DECISION,
+    Action,
+    BehaviorTree,
+    Condition,
+    Inverter,
+    Node,
+    as_features,
+    decide_batch,
+    iterate,
+)
+from ibt.bt.model import Sequence as SequenceNode
+from ibt.evaluate.policies import BTPolicy
+from ibt.evaluate.rollouts import Rollout, rollout
+from ibt.export.btcpp import CONDITION_ID, action_ids, blackboard_keys, from_btcpp_xml
+from ibt.tasks.catalogue import Task
+
+GROOT_START_SECONDS = 0.2  # a Groot2Publisher destroyed right after it starts can hang
+
+
+class EngineTree:
+    """An XML tree loaded in BehaviorTree.CPP with only the actions of ``action_names``.
+
+    Raises ``ValueError`` naming the problem when the XML is not one this task can run (a
+    blackboard key or action ID of another task, the ``CheckFeature`` flavour, XML the engine
+    rejects). ``bt`` is the same tree read by :func:`ibt.export.btcpp.from_btcpp_xml`.
+    """
+
+    def __init__(self, xml: str, feature_names: Sequence[str], action_names: Sequence[str],
+                 source: str = "the XML") -> None:
+        try:
+            self.bt = from_btcpp_xml(xml, feature_names, action_names)
+        except ValueError as err:
+            raise ValueError(f"{source}: {err}") from None
+        if uses_check_feature(xml):
+            raise ValueError(f"{source} uses the custom {CONDITION_ID} condition, which needs "
+                             "its C++ node; export the portable flavour (the default of "
+                             "`python -m ibt export BT.json --format btcpp-xml`)")
+        self.keys = blackboard_keys(feature_names)
+        self.action_ids = action_ids(action_names)
+        self._fired = [NO_DECISION]
+        self.actions_ticked = 0  # every action tick, the first of each tick and any later ones
+        factory = btpy.BehaviorTreeFactory()
+        for index, ident in enumerate(self.action_ids):
+            factory.register_simple_action(ident, self._action(index))
+        try:
+            self.tree = factory.create_tree_from_text(xml)
+        except RuntimeError as err:
+            raise ValueError(f"BehaviorTree.CPP cannot load {source}: "
+                             f"{' '.join(str(err).split())}") from None
+        self.blackboard = self.tree.root_blackboard()
+
+    def _action(self, index: int) -> Callable[[Any], Any]:
+        fired = self._fired
+
+        def tick(_node: Any) -> Any:
+            if fired[0] == NO_DECISION:
+                fired[0] = index
+            self.actions_ticked += 1
+            return btpy.NodeStatus.SUCCESS
+
+        return tick
+
+    def tick(self, features: Sequence[float] | np.ndarray) -> int:
+        """Fill the blackboard from one feature vector, tick once, return the action fired."""
+        values = as_features(np.asarray(features).reshape(-1)).tolist()
+        for key, value in zip(self.keys, values, strict=True):
+            self.blackboard.set_double(key, value)
+        self._fired[0] = NO_DECISION
+        self.tree.tick_once()
+        return self._fired[0]
+
+    def decide(self, features: np.ndarray) -> np.ndarray:
+        """One engine tick per row of ``features``; ``NO_DECISION`` where no action ran."""
+        rows = np.atleast_2d(features)
+        return np.fromiter((self.tick(row) for row in rows), dtype=np.int64, count=len(rows))
+
+    def groot_publisher(self, port: int) -> Any:
+        """Publish this tree to Groot2 on ``port`` while the returned object lives."""
+        try:
+            publisher = btpy.Groot2Publisher(self.tree, port)
+        except RuntimeError as err:
+            raise ValueError(f"cannot publish to Groot2 on port {port}: {err}") from None
+        time.sleep(GROOT_START_SECONDS)
+        return publisher
+
+
+def uses_check_feature(xml: str) -> bool:
+    """Whether a tree of the XML uses the ``CheckFeature`` flavour's custom condition."""
+    return any(e.tag == CONDITION_ID or (e.tag == "Condition" and e.get("ID") == CONDITION_ID)
+               for tree in ET.fromstring(xml).iter("BehaviorTree") for e in tree.iter())
+
+
+def load_engine_tree(xml: str, task: Task, source: str = "the XML") -> EngineTree:
+    """:class:`EngineTree` for ``task``'s features and actions."""
+    return EngineTree(xml, task.feature_names, task.action_names, source)
+
+
+class EnginePolicy:
+    """A policy on raw observations of ``task`` whose every decision is an engine tick."""
+
+    def __init__(self, task: Task, engine: EngineTree) -> None:
+        self.task = task
+        self.engine = engine
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.engine.decide(self.task.features(obs))
+
+
+# ----------------------------------------------------------------------- checking states
+@dataclass(frozen=True)
+class Region:
+    """A box ``lo < x <= hi`` (per feature; infinite bounds allowed) where the BT decides
+    ``action``."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    action: int
+
+
+class _Split(Exception):
+    def __init__(self, feature: int, threshold: float) -> None:
+        self.feature, self.threshold = feature, threshold
+
+
+def _status(node: Node, lo: np.ndarray, hi: np.ndarray) -> tuple[bool, int]:
+    """Success and decision of ``node`` on every point of the box, or :class:`_Split`."""
+    if isinstance(node, Condition):
+        f, t = node.feature, node.threshold
+        if hi[f] <= t:
+            below = True
+        elif lo[f] >= t:
+            below = False
+        else:
+            raise _Split(f, t)
+        return below == (node.op == "<="), NO_DECISION
+    if isinstance(node, Action):
+        return True, node.action
+    if isinstance(node, Inverter):
+        ok, decision = _status(node.child, lo, hi)
+        return not ok, decision
+    want = isinstance(node, SequenceNode)  # a sequence goes on while its children succeed
+    decision = NO_DECISION
+    for child in node.children:
+        ok, chosen = _status(child, lo, hi)
+        if decision == NO_DECISION:
+            decision = chosen
+        if ok != want:
+            return not want, decision
+    return want, decision
+
+
+def leaf_regions(bt: BehaviorTree) -> list[Region]:
+    """The boxes on which ``bt`` decides one action: the leaves of the decision tree it is.
+
+    Evaluates the BT on a box and splits the box at the first condition whose outcome the box
+    does not fix, until every box is decided (like ``leaf_paths`` of a CART tree).
+    """
+    n = len(bt.feature_names)
+    stack = [(np.full(n, -np.inf), np.full(n, np.inf))]
+    regions: list[Region] = []
+    while stack:
+        lo, hi = stack.pop()
+        try:
+            _, action = _status(bt.root, lo, hi)
+        except _Split as split:
+            left_hi, right_lo = hi.copy(), lo.copy()
+            left_hi[split.feature] = right_lo[split.feature] = split.threshold
+            stack.append((right_lo, hi))
+            stack.append((lo, left_hi))
+            continue
+        regions.append(Region(lo, hi, action))
+    return regions
+
+
+def _down(x: float) -> np.float32:
+    """The largest float32 value at or below ``x``."""
+    v = np.float32(x)
+    return np.nextafter(v, np.float32(-np.inf)) if float(v) > x else v
+
+
+def _up(x: float) -> np.float32:
+    """The smallest float32 value above ``x``."""
+    v = np.float32(x)
+    return np.nextafter(v, np.float32(np.inf)) if float(v) <= x else v
+
+
+def threshold_neighbours(threshold: float) -> list[float]:
+    """The float32 values around ``t`` as the executor compares them: the two largest at or
+    below it and the two smallest above it."""
+    at, above = _down(threshold), _up(threshold)
+    return [float(np.nextafter(at, np.float32(-np.inf))), float(at), float(above),
+            float(np.nextafter(above, np.float32(np.inf)))]
+
+
+def _inside(lo: float, hi: float, low: float, high: float, integer: bool) -> float | None:
+    """A float32 value ``v`` with ``lo < v <= hi``, inside the task's box where they overlap
+    (an integer for integer features), else as ``ibt.synth.rules.leaf_witnesses`` picks; ``None``
+    when no float32 value lies in the interval."""
+    if integer:
+        first = max(np.floor(lo) + 1, np.ceil(low))
+        last = min(np.floor(hi), np.floor(high))
+        if first <= last:
+            return float((first + last) // 2)
+    a, b = max(lo, low), min(hi, high)
+    if a <= b:
+        value = (a + b) / 2
+    elif np.isfinite(lo) and np.isfinite(hi):
+        value = (lo + hi) / 2
+    else:
+        value = hi - 1.0 if np.isfinite(hi) else lo + 1.0
+    for v in (np.float32(value), _up(lo), _down(hi)):
+        if lo < float(v) <= hi:
+            return float(v)
+    return None
+
+
+def agreement_states(bt: BehaviorTree, task: Task, n_random: int = 10_000,
+                     seed: int = 0) -> np.ndarray:
+    """States to check an executor against ``bt`` on (float32 rows).
+
+    A point inside every leaf region (:func:`leaf_regions`); for each, the bounding features set
+    to the float32 values just below, at and above the bound (:func:`threshold_neighbours`);
+    every threshold's neighbours once more in a random state (conditions no region bounds);
+    ``n_random`` random states from the task's box; the whole state space of a discrete task.
+    """
+    low, high = np.asarray(task.low, dtype=np.float64), np.asarray(task.high, dtype=np.float64)
+    integer = task.integer_features or task.discrete_state
+    rng = np.random.default_rng(seed)
+    rows: list[np.ndarray] = []
+    for region in leaf_regions(bt):
+        point = [_inside(region.lo[f], region.hi[f], low[f], high[f], integer)
+                 for f in range(len(low))]
+        if any(v is None for v in point):  # no float32 value in the box
+            continue
+        base = np.asarray(point, dtype=np.float64)
+        rows.append(base)
+        for f in range(len(low)):
+            for bound in (region.lo[f], region.hi[f]):
+                if np.isfinite(bound):
+                    for value in threshold_neighbours(bound):
+                        edge = base.copy()
+                        edge[f] = value
+                        rows.append(edge)
+    random = task.sample_features(n_random, rng)
+    for node in iterate(bt.root):
+        if isinstance(node, Condition):
+            for value in threshold_neighbours(node.threshold):
+                edge = random[rng.integers(len(random))].astype(np.float64)
+                edge[node.feature] = value
+                rows.append(edge)
+    parts = [np.asarray(rows, dtype=np.float32).reshape(-1, len(low)), random]
+    if task.discrete_state:
+        parts.append(np.arange(task.low[0], task.high[0] + 1, dtype=np.float32)[:, None])
+    return np.concatenate(parts)
+
+
+# ------------------------------------------------------------------------------ rollouts
+def engine_rollout(task: Task, engine: EngineTree, seeds: Sequence[int], **kwargs: Any) -> Rollout:
+    """:func:`ibt.evaluate.rollouts.rollout` with every decision an engine tick."""
+    return rollout(task, EnginePolicy(task, engine).act, seeds, **kwargs)
+
+
+@dataclass(frozen=True)
+class RolloutComparison:
+    """The same seeds played by the engine and by the Python BT."""
+
+    engine: Rollout
+    python: Rollout
+    ticks: int  # engine ticks, one per step
+    disagreements: int  # steps where the Python BT would have chosen another action
+    states: np.ndarray  # every feature vector the engine ticked on
+
+    @property
+    def same_returns(self) -> bool:
+        return bool(np.array_equal(self.engine.returns, self.python.returns))
+
+
+def compare_rollouts(task: Task, engine: EngineTree, seeds: Sequence[int],
+                     on_step: Callable[[np.ndarray, np.ndarray], None] | None = None,
+                     ) -> RolloutComparison:
+    """Play ``seeds`` in the engine, then with ``engine.bt`` in Python; compare every step."""
+    seen: list[np.ndarray] = []
+    chosen: list[np.ndarray] = []
+
+    def record(obs: np.ndarray, actions: np.ndarray) -> None:
+        seen.append(task.features(obs))
+        chosen.append(np.asarray(actions))
+        if on_step is not None:
+            on_step(obs, actions)
+
+    played = engine_rollout(task, engine, seeds, on_step=record)
+    states = np.concatenate(seen) if seen else np.empty((0, task.n_features), np.float32)
+    actions = np.concatenate(chosen) if chosen else np.empty(0, np.int64)
+    disagreements = int(np.sum(engine.bt.decide(states) != actions))
+    python = rollout(task, BTPolicy(task, engine.bt).act, seeds)
+    return RolloutComparison(played, python, len(states), disagreements, states)
+
+
+def _rate(fn: Callable[[np.ndarray], Any], states: np.ndarray, min_seconds: float) -> float:
+    done, start = 0, time.perf_counter()
+    while True:
+        for row in states:
+            fn(row)
+        done += len(states)
+        elapsed = time.perf_counter() - start
+        if elapsed >= min_seconds:
+            return done / elapsed
+
+
+def ticks_per_second(engine: EngineTree, states: np.ndarray,
+                     min_seconds: float = 0.25) -> dict[str, float]:
+    """Ticks per second, one state per tick, of the engine (blackboard filled each tick) and of
+    ``ibt``'s executor (:func:`ibt.bt.model.decide_batch`, what
+    :class:`ibt.evaluate.policies.BTPolicy` runs)."""
+    states = np.asarray(states[:2000], dtype=np.float32)
+    root = engine.bt.root
+    return {"BehaviorTree.CPP": _rate(engine.tick, states, min_seconds),
+            "ibt Python executor": _rate(lambda row: decide_batch(root, row[None]), states,
+                                         min_seconds)}
+
+
+# ------------------------------------------------------------------------------ the CLI
+@dataclass(frozen=True)
+class EngineRun:
+    """What ``python -m ibt run-btcpp`` measured."""
+
+    task: Task
+    comparison: RolloutComparison
+    rates: dict[str, float]
+
+    @property
+    def ok(self) -> bool:
+        return self.comparison.same_returns and self.comparison.disagreements == 0
+
+    def summary(self) -> str:
+        c = self.comparison
+        same = ("equal on every episode" if c.same_returns else
+                f"DIFFERENT on {int(np.sum(c.engine.returns != c.python.returns))} episodes")
+        rates = "; ".join(f"{name} {rate:,.0f}" for name, rate in self.rates.items())
+        return (f"{self.task.name}: BehaviorTree.CPP return {c.engine.mean:.3f} +- "
+                f"{c.engine.std:.3f} over {len(c.engine.returns)} episodes; the Python BT "
+                f"{c.python.mean:.3f} +- {c.python.std:.3f} ({same}); {c.ticks} ticks, "
+                f"{c.disagreements} decisions differ\n"
+                f"ticks per second, one state per tick: {rates}")
+
+
+def _other_task_hint(xml: str, task: Task) -> str:
+    """`` It reads as a BT of X: pass --task X`` when exactly one other task reads ``xml``."""
+    from ibt.tasks.catalogue import TASKS
+
+    fits = []
+    for other in TASKS.values():
+        if other.name == task.name:
+            continue
+        try:
+            from_btcpp_xml(xml, other.feature_names, other.action_names)
+        except ValueError:
+            continue
+        fits.append(other.name)
+    return f" It reads as a BT of {fits[0]}: pass --task {fits[0]}" if len(fits) == 1 else ""
+
+
+def run_btcpp(path: str | Path, task: Task, episodes: int, groot_port: int | None = None,
+              step_delay: float = 0.0) -> EngineRun:
+    """Roll the XML at ``path`` out in BehaviorTree.CPP on the fixed evaluation episodes, with
+    the Python BT on the same seeds beside it, and time both executors."""
+    from ibt.evaluate.rollouts import final_seeds
+
+    path = Path(path)
+    if episodes < 1:
+        raise ValueError(f"--episodes must be at least 1, got {episodes}")
+    if groot_port is not None and not 1 <= groot_port <= 65535:
+        raise ValueError(f"--groot-port must be a TCP port (1-65535), got {groot_port}")
+    if step_delay < 0:
+        raise ValueError(f"--step-delay must be >= 0 seconds, got {step_delay}")
+    if not path.is_file():
+        raise FileNotFoundError(f"no BehaviorTree.CPP XML at {path}; write one with `python -m "
+                                f"ibt export BT.json --format btcpp-xml -o {path}`")
+    text = path.read_text()
+    try:
+        engine = load_engine_tree(text, task, source=str(path))
+    except ValueError as err:
+        raise ValueError(f"{err}{_other_task_hint(text, task)}") from None
+    publisher = engine.groot_publisher(groot_port) if groot_port is not None else None
+    try:
+        pause = (lambda _obs, _actions: time.sleep(step_delay)) if step_delay else None
+        comparison = compare_rollouts(task, engine, final_seeds(episodes), on_step=pause)
+    finally:
+        del publisher  # (it has lived GROOT_START_SECONDS at least: see groot_publisher)
+    return EngineRun(task, comparison, ticks_per_second(engine, comparison.states))

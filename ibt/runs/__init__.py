@@ -1,0 +1,2 @@
+"""Runs and their artifacts: the content-addressed cache, the paper grid, the front, the
+cached steps notebooks call."""

@@ -1,0 +1,127 @@
+"""The steps notebooks call: cached distillation, synthesis to files, comparison tables.
+
+Each function does one step of the data flow (expert -> tree -> BT -> evaluation) under a
+:class:`ibt.profiles.Config`, reading heavy results from the cache when they are there.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from ibt.bt.model import BehaviorTree
+from ibt.profiles import Config
+from ibt.distill.loop import Distillation, DistillConfig, distill, task_budget
+from ibt.evaluate.rollouts import (
+    episode_metrics,
+    final_seeds,
+    retention_norm,
+    retention_raw,
+    rollout,
+)
+from ibt.experts.expert import expert_path, load_expert
+from ibt.export.drawing import save_json
+from ibt.files import file_digest
+from ibt.runs.cache import load_or_compute
+from ibt.tasks.catalogue import get_task
+
+
+def distill_config(cfg: Config, task: str, method: str = "imitation-bt", **overrides: Any
+                   ) -> DistillConfig:
+    """The task's distillation settings (``TASK_BUDGETS``) scaled to the profile's budgets."""
+    budget = task_budget(task)
+    labels = max(50, round(budget.labels_per_iteration * cfg.labels_scale))
+    iterations = min(cfg.n_iterations, budget.max_iterations or cfg.n_iterations)
+    settings = {"n_iterations": iterations, "labels_per_iteration": labels,
+                "selection_episodes": cfg.selection_episodes * budget.selection_scale, **overrides}
+    return DistillConfig.for_task(task, method=method, **settings)
+
+
+def distill_params(cfg: Config, task: str, algo: str, method: str = "imitation-bt",
+                   seed: int = 0, **overrides: Any) -> dict[str, Any]:
+    """The cache parameters of one distillation run (see :func:`distill_cached`)."""
+    task_obj = get_task(task)
+    dcfg = distill_config(cfg, task_obj.name, method, **overrides)
+    return {"task": task_obj.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
+            "expert_sha256": file_digest(expert_path(task_obj, algo))}
+
+
+def distill_cached(cfg: Config, task: str, algo: str, method: str = "imitation-bt",
+                   seed: int = 0, **overrides: Any) -> Distillation:
+    """A distillation run, from the cache when the same expert, settings and seed ran before.
+
+    The cache key holds the expert checkpoint's digest: a retrained expert is a cache miss.
+    """
+    task_obj = get_task(task)
+    dcfg = distill_config(cfg, task_obj.name, method, **overrides)
+    params = distill_params(cfg, task_obj.name, algo, method, seed, **overrides)
+
+    def compute() -> Distillation:
+        return distill(task_obj, load_expert(task_obj, algo), dcfg, seed, progress=cfg.progress)
+
+    return load_or_compute("distill", params, compute, cache_dir=cfg.cache_dir,
+                           refresh=cfg.refresh)
+
+
+def iterations_frame(run: Distillation) -> pd.DataFrame:
+    """One row per iteration, with the chosen tree marked."""
+    frame = pd.DataFrame(run.iterations)
+    frame["best"] = frame["iteration"] == run.best_index
+    return frame
+
+
+def tree_path(cfg: Config, task: str, algo: str, method: str) -> Path:
+    return cfg.data_dir / "trees" / get_task(task).name / algo / f"{method}.json"
+
+
+def save_tree(cfg: Config, bt: BehaviorTree, task: str, algo: str, method: str) -> Path:
+    """Write ``data/trees/<task>/<algo>/<method>.json`` (under the profile's data dir)."""
+    return save_json(bt, tree_path(cfg, task, algo, method))
+
+
+def compare_policies(cfg: Config, task: str, policies: dict[str, Any], reference: str = "expert",
+                     random_return: float | None = None) -> pd.DataFrame:
+    """Return statistics of each policy over the profile's final-evaluation episodes.
+
+    Retention is relative to the policy named ``reference`` (measured here, on the same
+    episodes); the random-normalised retention needs ``random_return``.
+    """
+    task_obj = get_task(task)
+    if reference not in policies:
+        raise KeyError(f"reference policy {reference!r} is not among {list(policies)}")
+    rows = []
+    for name, policy in policies.items():
+        result = rollout(task_obj, policy.act, final_seeds(cfg.final_episodes))
+        row = {"policy": name, "episodes": len(result.returns),
+               "mean_return": result.mean, "std_return": result.std}
+        row.update(episode_metrics(task_obj, result))
+        row["nodes"] = _nodes(policy)
+        rows.append(row)
+    frame = pd.DataFrame(rows).set_index("policy")
+    expert = frame.loc[reference, "mean_return"]
+    frame["retention_raw_%"] = [retention_raw(r, expert) for r in frame["mean_return"]]
+    if random_return is not None:
+        frame["retention_norm_%"] = [retention_norm(r, expert, random_return)
+                                     for r in frame["mean_return"]]
+    return frame
+
+
+def provenance() -> dict[str, str]:
+    """Package versions and the git commit, for the last cell of every notebook."""
+    import platform
+
+    from ibt.runs.cache import git_sha, package_versions
+
+    return {"git_sha": git_sha(), "python": platform.python_version(),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores", **package_versions()}
+
+
+def _nodes(policy: Any) -> float:
+    if hasattr(policy, "bt"):
+        return policy.bt.node_count
+    if hasattr(policy, "tree"):
+        return policy.tree.tree_.node_count
+    return float("nan")

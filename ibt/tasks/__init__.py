@@ -1,0 +1,1 @@
+"""The task catalogue: every fact about one environment in one entry (`Task`)."""
