@@ -29,18 +29,17 @@ import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
-import joblib
+from ibt.synth.registry import SYNTHESISERS, get_synthesiser
+from ibt.tasks.settings import ALGOS, DEFAULT_MAX_LEAF_NODES
 
-from ibt.distill.loop import DEFAULT_MAX_LEAF_NODES
-from ibt.experts.expert import ALGOS
-from ibt.tasks.catalogue import Task
+if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
+    from ibt.tasks.task import Task
 
 EXPORT_FORMATS = ("json", "dot", "svg", "png", "btcpp-xml")
 EXPORT_SUFFIXES = {"json": (".json",), "dot": (".dot", ".gv"), "svg": (".svg",),
                    "png": (".png",), "btcpp-xml": (".xml",)}
-SYNTHESIS_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso", "decision-list")
 TREE_FORMAT = "ibt-tree/1"
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -145,6 +144,7 @@ def save_tree_file(path: str | Path, tree: Any, task: Task | str, info: dict[str
     and actions it was fitted on, the modules that register the task's environment, run facts."""
     from ibt.files import atomic_target
     from ibt.tasks.catalogue import resolve_task
+    from ibt.tasks.task import Task
 
     task = task if isinstance(task, Task) else resolve_task(task)
     info = dict(info)
@@ -152,6 +152,8 @@ def save_tree_file(path: str | Path, tree: Any, task: Task | str, info: dict[str
     modules = list(dict.fromkeys([*info.pop("env_modules", []), *setup]))
     path = Path(path)
     with atomic_target(path) as tmp:
+        import joblib
+
         joblib.dump({"format": TREE_FORMAT, "tree": tree, "task": task.name,
                      "gym_id": task.gym_id, "env_modules": modules,
                      "feature_names": list(task.feature_names),
@@ -169,6 +171,8 @@ def load_tree_file(path: str | Path) -> dict[str, Any]:
     path = check_input(path, "decision-tree file", hint)
     not_ours = f"{path} is not a decision-tree file written by `python -m ibt distill`"
     try:
+        import joblib
+
         doc = joblib.load(path)
     except Exception as err:  # joblib raises many kinds on a damaged file
         raise UsageError(f"{not_ours} ({type(err).__name__})") from None
@@ -247,8 +251,7 @@ def _train(args: argparse.Namespace) -> int:
             raise UsageError(f"--refresh-before {stamp}: no such file; create it when a "
                              f"from-scratch run starts with `touch {shlex.quote(str(stamp))}`")
         since = stamp.stat().st_mtime
-    names = [task.name for task in tasks]  # registered: every one has hyperparameters
-    manifest = train_missing(names or None, algos, refresh=args.refresh, seed=args.seed,
+    manifest = train_missing(tasks or None, algos, refresh=args.refresh, seed=args.seed,
                              timesteps=args.timesteps, refresh_before=since, root=root)
     print(manifest.to_string(index=False))
     return 0
@@ -261,9 +264,7 @@ def _random(args: argparse.Namespace) -> int:
 
     tasks = [resolve_task(t) for t in args.tasks]
     path = check_output(args.output or DATA_DIR / "experts" / "random.csv", (".csv",))
-    # Task objects: an environment of --env-module has no registered name to look up
-    print(random_baselines(tasks or None,  # type: ignore[arg-type]
-                           n_episodes=args.episodes, path=path)
+    print(random_baselines(tasks or None, n_episodes=args.episodes, path=path)
           .to_string(index=False))
     return 0
 
@@ -304,7 +305,7 @@ def _refine(args: argparse.Namespace) -> int:
     overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
     if args.episodes is not None:
         overrides["episodes"] = args.episodes
-    config = task_config(task.name, **overrides)
+    config = task_config(task, **overrides)
     record = refine(doc["tree"], task, config, seed=args.seed, progress=not args.quiet)
     tree = record.best_tree
     info = {k: v for k, v in doc.items() if k in ("algo", "method", "seed")}
@@ -329,19 +330,11 @@ def _synthesize(args: argparse.Namespace) -> int:
     doc = load_tree_file(args.tree)
     task = _tree_task(doc, args.tree, args)
     try:
-        if args.method == "imitation-bt":
+        if args.method == "imitation-bt":  # the paper's construction takes its options
             result = imitation_bt(doc["tree"], task, default_strategy=args.default_strategy,
                                   dont_cares=args.dont_cares)
-        elif args.method == "decision-list":  # beyond the paper: the smallest verified BT
-            from ibt.synth.decision_list import decision_list_bt
-
-            result = decision_list_bt(doc["tree"], task)
         else:
-            from ibt.synth import baselines
-
-            make = {"bt-espresso": baselines.bt_espresso,
-                    "re-bt-espresso": baselines.re_bt_espresso}
-            result = make[args.method](doc["tree"], task)
+            result = get_synthesiser(args.method)(doc["tree"], task)
     except NotEquivalentError as err:  # a bug of ours, not bad input: nothing is written
         raise RuntimeError(f"the synthesised BT failed its verification ({err}); please "
                            "report it with the tree file") from None
@@ -527,7 +520,8 @@ def build_parser() -> argparse.ArgumentParser:
     syn = command("synthesize", help="turn a decision tree into a verified BT (JSON)")
     syn.add_argument("tree", help="decision-tree file from `distill`")
     syn.add_argument("-o", "--output", required=True, help="BT JSON file")
-    syn.add_argument("--method", default="imitation-bt", choices=SYNTHESIS_METHODS)
+    syn.add_argument("--method", default="imitation-bt", choices=tuple(SYNTHESISERS),
+                     help="a registered synthesiser (ibt.synth.registry); default imitation-bt")
     syn.add_argument("--default-strategy", default="max_complexity",
                      choices=("max_complexity", "most_frequent", "smallest_tree"))
     syn.add_argument("--dont-cares", action="store_true",

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 from sklearn.tree import DecisionTreeClassifier
 
+from ibt.tasks.catalogue import get_task
+
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -27,4 +29,4 @@ def fit_tree(n_features: int = 4, n_actions: int = 3, leaves: int = 12, seed: in
 def cartpole_expert():
     from ibt.experts.expert import load_expert
 
-    return load_expert("CartPole-v1", "ppo")
+    return load_expert(get_task("CartPole-v1"), "ppo")

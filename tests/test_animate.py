@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,14 +11,15 @@ import pytest
 from ibt.export.drawing import load_json
 from ibt.paths import DATA_DIR
 from ibt.tasks.catalogue import get_task
-from ibt.views.animate import CLIPS, Clip, best_expert, episode, film, main
+from ibt.tasks.settings import Clip
+from ibt.views.animate import best_expert, episode, film, filmed_tasks, main
 
 pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
 
 
 def test_the_clips_cover_the_five_tasks_of_the_issue():
     assert {"CartPole-v1", "MountainCar-v0", "FrozenLake-v1", "LunarLander-v3",
-            "PackageDelivery-v0"} <= {clip.task for clip in CLIPS}
+            "PackageDelivery-v0"} <= {task.name for task in filmed_tasks()}
 
 
 def test_best_expert_skips_constant_action_bts():
@@ -41,7 +43,7 @@ def test_an_episode_acts_as_the_bt_decides():
 def test_film_writes_a_gif_of_every_drawn_step(tmp_path):
     from PIL import Image
 
-    facts = film(Clip("FrozenLake-v1", 20, 1, 200), tmp_path)
+    facts = film(replace(get_task("FrozenLake-v1"), clip=Clip(20, 1, 200)), tmp_path)
     with Image.open(facts["path"]) as gif:
         assert gif.n_frames == facts["frames"] == facts["steps"] == 6
         assert gif.size[0] == 840

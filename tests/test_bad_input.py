@@ -24,8 +24,8 @@ from ibt.export.drawing import save_json
 from ibt.synth.imitation import imitation_bt
 from ibt.tasks.catalogue import get_task
 
-CARTPOLE_DQN = str(expert_path("CartPole-v1", "dqn"))
-CARTPOLE_PPO = str(expert_path("CartPole-v1", "ppo"))
+CARTPOLE_DQN = str(expert_path(get_task("CartPole-v1"), "dqn"))
+CARTPOLE_PPO = str(expert_path(get_task("CartPole-v1"), "ppo"))
 
 
 def _mutate(doc: dict, change) -> dict:

@@ -130,3 +130,57 @@ def test_migration_rekeys_only_entries_with_current_versions(tmp_path, demo):
     assert cache_admin.migrate(tmp_path).migrated == {}  # a re-run changes nothing more
     assert cache_admin.main(["stale", "--cache-dir", str(tmp_path)]) == 0
     assert cache_admin.main(["stale", "--cache-dir", str(tmp_path / "none")]) == 2
+
+
+def test_stray_temporary_files_are_listed_and_pruned(tmp_path, demo):
+    import os
+    import time
+
+    load_or_compute("demo", {"a": 1}, dict, cache_dir=tmp_path, codec="json")
+    (folder,) = (tmp_path / "demo").iterdir()
+    old = [folder / ".payload.json.k3j2_x.json", folder / ".manifest.json.8fq1.json"]
+    for path in old:
+        path.write_text("{")  # what an atomic write killed mid-way leaves
+        stamp = time.time() - 3600
+        os.utime(path, (stamp, stamp))
+    (folder / ".payload.json.fresh.json").write_text("{")  # a write in progress: left alone
+    found = cache_admin.not_current(tmp_path)
+    assert sorted(e.name for e in found) == sorted(f"demo/{folder.name}/{p.name}" for p in old)
+    assert {e.status for e in found} == {"temporary"}
+    assert {e.status for e in cache_admin.entries(tmp_path)} == {"current"}
+    assert len(cache_admin.prune(tmp_path)) == 2
+    assert sorted(p.name for p in folder.iterdir()) == [
+        ".payload.json.fresh.json", "manifest.json", "payload.json"]
+    assert load_or_compute("demo", {"a": 1}, lambda: {"x": 2}, cache_dir=tmp_path,
+                           codec="json") == {}  # still a hit
+
+
+def test_an_unreadable_manifest_is_incomplete_and_pruned_only_on_request(tmp_path, demo):
+    load_or_compute("demo", {"a": 1}, dict, cache_dir=tmp_path, codec="json")
+    load_or_compute("demo", {"a": 2}, dict, cache_dir=tmp_path, codec="json")
+    empty = tmp_path / "demo" / cache_key("demo", {"a": 1})
+    (empty / "manifest.json").write_text("")
+    garbled = tmp_path / "demo" / cache_key("demo", {"a": 2})
+    (garbled / "manifest.json").write_text("{not json")
+    (tmp_path / "demo" / "2222222222222222").mkdir()  # no payload: nothing to keep
+    found = {e.key: e for e in cache_admin.entries(tmp_path)}
+    assert {e.status for e in found.values()} == {"incomplete"}
+    assert "unreadable or empty manifest" in found[empty.name].reason
+    # Expect: the payload-less folder goes, the entries that still hold a payload stay
+    assert [e.key for e in cache_admin.prune(tmp_path)] == ["2222222222222222"]
+    assert empty.exists() and garbled.exists()
+    assert cache_admin.main(["prune", "--incomplete", "--cache-dir", str(tmp_path)]) == 0
+    assert not empty.exists() and not garbled.exists()
+
+
+def test_unmigrated_entries_are_listed_but_never_pruned(tmp_path, demo):
+    load_or_compute("demo", {"a": 1}, dict, cache_dir=tmp_path, codec="json")
+    (folder,) = (tmp_path / "demo").iterdir()
+    manifest = json.loads((folder / "manifest.json").read_text())
+    del manifest["payload_sha256"]
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    (entry,) = cache_admin.not_current(tmp_path)
+    assert entry.status == "unmigrated" and "migrate-plain" in entry.reason
+    assert cache_admin.prune(tmp_path) == [] and folder.exists()
+    assert cache_admin.main(["migrate-plain", "--cache-dir", str(tmp_path)]) == 0  # no pickle
+    assert cache_admin.not_current(tmp_path) == [] and cache_admin.verify(tmp_path) == []

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from ibt.cli import main
-from ibt.distill.loop import DEFAULT_MAX_LEAF_NODES
 from ibt.experts.expert import expert_path
 from ibt.files import file_digest
+from ibt.tasks.catalogue import get_task
+from ibt.tasks.settings import DEFAULT_MAX_LEAF_NODES
 
 TINY = ["--iterations", "2", "--labels", "200", "--selection-episodes", "2", "--quiet"]
 
@@ -51,7 +52,7 @@ def test_distill_accepts_a_plain_gymnasium_id_with_a_checkpoint(tmp_path, capsys
     # CartPole-v0 is not a registered task: features become x0..x3
     out = tmp_path / "v0.joblib"
     code = main(["distill", "CartPole-v0", "ppo", "-o", str(out), "--checkpoint",
-                 str(expert_path("CartPole-v1", "ppo")), *TINY])
+                 str(expert_path(get_task("CartPole-v1"), "ppo")), *TINY])
     assert code == 0, capsys.readouterr().err
     assert main(["synthesize", str(out), "-o", str(tmp_path / "v0.json")]) == 0
     assert json.loads((tmp_path / "v0.json").read_text())["feature_names"][0] == "x0"
@@ -167,7 +168,7 @@ def test_checkpoint_hints_train_what_is_missing(tmp_path, capsys, monkeypatch):
 
 def test_a_checkpoint_of_another_algorithm_says_which(tmp_path, capsys):
     argv = ["distill", "CartPole-v1", "ppo", "--checkpoint",
-            str(expert_path("CartPole-v1", "dqn")), "-o", str(tmp_path / "t.joblib"),
+            str(expert_path(get_task("CartPole-v1"), "dqn")), "-o", str(tmp_path / "t.joblib"),
             *CHEAP["distill"]]
     assert main(argv) == 2
     assert "pass dqn as the algorithm" in capsys.readouterr().err
@@ -176,12 +177,12 @@ def test_a_checkpoint_of_another_algorithm_says_which(tmp_path, capsys):
 
 def test_library_hints_are_commands_that_work(tmp_path, capsys, monkeypatch):
     import ibt.paths
-    import ibt.tasks.catalogue
+    import ibt.tasks.task
     from ibt.experts.training import expert_return
     from ibt.tasks.catalogue import get_task
 
     monkeypatch.setattr(ibt.paths, "DATA_DIR", tmp_path / "data")
-    monkeypatch.setattr(ibt.tasks.catalogue, "DATA_DIR", tmp_path / "data")
+    monkeypatch.setattr(ibt.tasks.task, "DATA_DIR", tmp_path / "data")
     with pytest.raises(LookupError) as missing_random:
         get_task("CartPole-v1").random_return()
     (hint,) = _hints(str(missing_random.value))

@@ -8,6 +8,7 @@ import pytest
 from ibt.distill import schedules
 from ibt.distill.loop import METHODS, DistillConfig, _signature, distill, mix
 from ibt.evaluate.rollouts import final_seeds, rollout, selection_seeds
+from ibt.tasks.catalogue import get_task
 
 
 def test_schedule_values_are_exact():
@@ -58,11 +59,11 @@ def test_mixed_policy_uses_the_expert_with_frequency_beta(beta):
 
 
 def test_same_seed_same_tree_and_different_seed_differs(cartpole_expert):
-    cfg = DistillConfig.for_task("CartPole-v1", n_iterations=3, labels_per_iteration=300,
+    cfg = DistillConfig.for_task(get_task("CartPole-v1"), n_iterations=3, labels_per_iteration=300,
                                  selection_episodes=2)
-    a = distill("CartPole-v1", cartpole_expert, cfg, seed=1, progress=False)
-    b = distill("CartPole-v1", cartpole_expert, cfg, seed=1, progress=False)
-    c = distill("CartPole-v1", cartpole_expert, cfg, seed=2, progress=False)
+    a = distill(get_task("CartPole-v1"), cartpole_expert, cfg, seed=1, progress=False)
+    b = distill(get_task("CartPole-v1"), cartpole_expert, cfg, seed=1, progress=False)
+    c = distill(get_task("CartPole-v1"), cartpole_expert, cfg, seed=2, progress=False)
     assert [_signature(t) for t in a.trees] == [_signature(t) for t in b.trees]
     assert a.iterations == b.iterations
     assert [_signature(t) for t in a.trees] != [_signature(t) for t in c.trees]
@@ -70,11 +71,12 @@ def test_same_seed_same_tree_and_different_seed_differs(cartpole_expert):
 
 def test_weighted_resampling_changes_the_fit(cartpole_expert):
     common = {"n_iterations": 2, "labels_per_iteration": 400, "selection_episodes": 1}
-    viper = distill("CartPole-v1", cartpole_expert,
-                    DistillConfig.for_task("CartPole-v1", method="viper", **common), seed=0,
+    viper = distill(get_task("CartPole-v1"), cartpole_expert,
+                    DistillConfig.for_task(get_task("CartPole-v1"), method="viper", **common),
+                    seed=0,
                     progress=False)
-    bc = distill("CartPole-v1", cartpole_expert,
-                 DistillConfig.for_task("CartPole-v1", method="bc", **common), seed=0,
+    bc = distill(get_task("CartPole-v1"), cartpole_expert,
+                 DistillConfig.for_task(get_task("CartPole-v1"), method="bc", **common), seed=0,
                  progress=False)
     # iteration 0 sees the same expert episodes; only the resampling differs
     assert viper.iterations[0]["labels"] == bc.iterations[0]["labels"]
@@ -83,15 +85,16 @@ def test_weighted_resampling_changes_the_fit(cartpole_expert):
 
 def test_successive_rollouts_differ_after_loading(cartpole_expert):
     """SB3's load() reseeds global RNGs; our episodes are seeded explicitly and must differ."""
-    first = rollout("CartPole-v1", cartpole_expert.act, [11], collect=True)
-    second = rollout("CartPole-v1", cartpole_expert.act, [12], collect=True)
-    again = rollout("CartPole-v1", cartpole_expert.act, [11], collect=True)
+    first = rollout(get_task("CartPole-v1"), cartpole_expert.act, [11], collect=True)
+    second = rollout(get_task("CartPole-v1"), cartpole_expert.act, [12], collect=True)
+    again = rollout(get_task("CartPole-v1"), cartpole_expert.act, [11], collect=True)
     assert not np.array_equal(first.obs[0], second.obs[0])
     assert np.array_equal(first.obs[0], again.obs[0])
 
 
 def test_budget_runs_whole_episodes():
-    result = rollout("CartPole-v1", lambda obs: np.zeros(len(obs), int), range(100), n_envs=2,
+    result = rollout(get_task("CartPole-v1"), lambda obs: np.zeros(len(obs), int), range(100),
+                     n_envs=2,
                      budget=50)
     assert result.lengths.sum() >= 50
     assert len(result.returns) < 100

@@ -20,8 +20,8 @@ import joblib
 import pytest
 
 from ibt.cli import main
-from ibt.distill.loop import DEFAULT_MAX_LEAF_NODES
 from ibt.tasks.catalogue import TASKS
+from ibt.tasks.settings import DEFAULT_MAX_LEAF_NODES
 
 TINY = ["--iterations", "2", "--labels", "100", "--selection-episodes", "2", "--quiet"]
 

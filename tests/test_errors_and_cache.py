@@ -10,6 +10,7 @@ import ibt
 from ibt.distill.loop import DistillConfig
 from ibt.experts.expert import expert_path, load_expert
 from ibt.runs.cache import cache_key, is_cached, load_or_compute
+from ibt.tasks.catalogue import get_task
 
 
 def test_unknown_task_names_the_closest_ones():
@@ -28,12 +29,12 @@ def test_unknown_method_and_algorithm():
     with pytest.raises(ValueError, match="unknown method 'gail'"):
         DistillConfig(method="gail")
     with pytest.raises(ValueError, match="unknown algorithm 'sac'"):
-        load_expert("CartPole-v1", "sac")
+        load_expert(get_task("CartPole-v1"), "sac")
 
 
 def test_missing_expert_says_how_to_train(tmp_path):
     with pytest.raises(FileNotFoundError, match="python -m ibt train CartPole-v1 --algo dqn"):
-        load_expert("CartPole-v1", "dqn", tmp_path / "dqn.zip")
+        load_expert(get_task("CartPole-v1"), "dqn", tmp_path / "dqn.zip")
 
 
 def test_corrupt_expert_is_refused(tmp_path):
@@ -41,19 +42,19 @@ def test_corrupt_expert_is_refused(tmp_path):
     not_zip.write_bytes(b"this is not a checkpoint")
     with pytest.raises(ValueError, match=r"not a Stable-Baselines3 checkpoint.*"
                        "python -m ibt train CartPole-v1 --algo ppo"):
-        load_expert("CartPole-v1", "ppo", not_zip)
+        load_expert(get_task("CartPole-v1"), "ppo", not_zip)
     truncated = tmp_path / "trunc.zip"
-    data = expert_path("CartPole-v1", "ppo").read_bytes()
+    data = expert_path(get_task("CartPole-v1"), "ppo").read_bytes()
     truncated.write_bytes(data[: len(data) // 2])
     with pytest.raises(ValueError, match="python -m ibt train CartPole-v1 --algo ppo"):
-        load_expert("CartPole-v1", "ppo", truncated)
+        load_expert(get_task("CartPole-v1"), "ppo", truncated)
 
 
 def test_mismatched_expert_is_refused(tmp_path):
     other = tmp_path / "ppo.zip"
-    shutil.copy(expert_path("CartPole-v1", "ppo"), other)
+    shutil.copy(expert_path(get_task("CartPole-v1"), "ppo"), other)
     with pytest.raises(ValueError, match="another task"):
-        load_expert("MountainCar-v0", "ppo", other)
+        load_expert(get_task("MountainCar-v0"), "ppo", other)
 
 
 @pytest.fixture

@@ -8,6 +8,7 @@ import pytest
 
 import ibt
 from ibt.runs.grid import Cell, bootstrap_ci, grid, run_grid, summarise
+from ibt.tasks.catalogue import get_task
 
 TINY = {"n_iterations": 2, "labels_per_iteration": 100, "selection_episodes": 2}
 
@@ -16,7 +17,7 @@ def test_grid_is_the_full_cross_product():
     cells = grid(["CartPole-v1"], ["ppo", "a2c"], ["bc", "imitation-bt"], [0, 1, 2])
     assert len(cells) == 12
     assert len(set(cells)) == 12
-    assert Cell("CartPole-v1", "ppo", "bc", 0) in cells
+    assert Cell(get_task("CartPole-v1"), "ppo", "bc", 0) in cells
 
 
 def test_bootstrap_ci_brackets_the_mean_and_shrinks_with_data():

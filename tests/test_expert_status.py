@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from ibt.experts import training
+from ibt.tasks.catalogue import get_task
 
 
 def _fake_expert(monkeypatch, act):
@@ -18,22 +19,22 @@ def _fake_expert(monkeypatch, act):
 def test_a_constant_expert_is_detected(monkeypatch):
     _fake_expert(monkeypatch, lambda obs: np.full(len(obs), 1))
     # Expect: every step 'right' on CliffWalking (the episodes never end: 100-step limit)
-    status = training.expert_status("CliffWalking-v1", "dqn", True, n_episodes=3)
+    status = training.expert_status(get_task("CliffWalking-v1"), "dqn", True, n_episodes=3)
     assert status["status"] == "constant-action"
     assert status["status_evidence"] == "always 'right' on all 300 steps of the 3 final episodes"
 
 
 def test_below_the_bar_is_excluded_whatever_it_does(monkeypatch):
     _fake_expert(monkeypatch, lambda obs: np.full(len(obs), 1))
-    status = training.expert_status("CliffWalking-v1", "dqn", False, n_episodes=2)
+    status = training.expert_status(get_task("CliffWalking-v1"), "dqn", False, n_episodes=2)
     assert status["status"] == "excluded"
     assert status["status_evidence"].startswith("below its bar; actions over the 2 final")
 
 
 def test_a_committed_expert_is_ok_with_its_action_counts():
-    counts, steps = training.action_counts("FrozenLake-v1", "dqn", n_episodes=4)
+    counts, steps = training.action_counts(get_task("FrozenLake-v1"), "dqn", n_episodes=4)
     assert steps == 24 and counts == {1: 12, 2: 12}  # down and right, 6 steps an episode
-    status = training.expert_status("FrozenLake-v1", "dqn", True, n_episodes=4)
+    status = training.expert_status(get_task("FrozenLake-v1"), "dqn", True, n_episodes=4)
     assert status == {"status": "ok", "status_evidence":
                       "actions over the 4 final episodes (24 steps): down 12, right 12"}
 

@@ -6,17 +6,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ibt.experts.expert import HYPERPARAMS, expert_path, load_expert
+from ibt.experts.expert import expert_path, load_expert
 from ibt.paths import DATA_DIR
 from ibt.tasks.catalogue import TASKS, get_task
 
 MANIFEST = pd.read_csv(DATA_DIR / "experts" / "manifest.csv")
 COMMITTED = [(t, a) for t, a in zip(MANIFEST.task, MANIFEST.algo, strict=True)
-             if expert_path(t, a).exists()]
+             if expert_path(get_task(t), a).exists()]
 
 
 def test_every_task_and_algo_has_hyperparameters():
-    assert {(t, a) for t in TASKS for a in ("dqn", "ppo", "a2c")} <= set(HYPERPARAMS)
+    assert all({"dqn", "ppo", "a2c"} <= set(dict(t.experts)) for t in TASKS.values())
 
 
 def test_manifest_has_the_required_columns():
@@ -28,8 +28,8 @@ def test_manifest_has_the_required_columns():
 
 @pytest.mark.parametrize(("task", "algo"), COMMITTED)
 def test_committed_expert_scores(task, algo):
-    expert = load_expert(task, algo)
     spec = get_task(task)
+    expert = load_expert(spec, algo)
     env = spec.make_env()
     obs = np.stack([env.reset(seed=s)[0] for s in range(5)])
     scores = expert.scores(obs)
@@ -53,16 +53,16 @@ def test_training_is_deterministic(tmp_path):
 
     a, b = tmp_path / "a.zip", tmp_path / "b.zip"
     for path in (a, b):
-        train_expert("CartPole-v1", "ppo", path, timesteps=2048, progress=False)
+        train_expert(get_task("CartPole-v1"), "ppo", path, timesteps=2048, progress=False)
     obs = np.random.default_rng(0).uniform(-0.2, 0.2, size=(50, 4)).astype(np.float32)
-    assert np.array_equal(load_expert("CartPole-v1", "ppo", a).scores(obs),
-                          load_expert("CartPole-v1", "ppo", b).scores(obs))
+    assert np.array_equal(load_expert(get_task("CartPole-v1"), "ppo", a).scores(obs),
+                          load_expert(get_task("CartPole-v1"), "ppo", b).scores(obs))
 
 
 def test_fast_scores_match_sb3_distribution():
     import torch
 
-    expert = load_expert("CartPole-v1", "ppo")
+    expert = load_expert(get_task("CartPole-v1"), "ppo")
     obs = np.random.default_rng(1).uniform(-0.2, 0.2, size=(32, 4)).astype(np.float32)
     with torch.no_grad():
         dist = expert.model.policy.get_distribution(expert._obs_tensor(obs))
@@ -83,7 +83,8 @@ def test_training_leaves_no_scratch_folders(tmp_path, monkeypatch):
     monkeypatch.setattr(expert, "MIN_STEPS_FOR_CHECKPOINTS", 0)
     monkeypatch.setattr(expert, "EVAL_POINTS", 1)
     monkeypatch.setattr(expert, "EVAL_EPISODES", 1)
-    expert.train_expert("CartPole-v1", "dqn", tmp_path / "dqn.zip", timesteps=64, progress=False)
+    expert.train_expert(get_task("CartPole-v1"), "dqn", tmp_path / "dqn.zip", timesteps=64,
+                        progress=False)
     assert (tmp_path / "dqn.zip").exists()
     ours = [p.name for p in scratch.iterdir() if p.name.startswith(("SB3-", "ibt-"))]
     assert ours == []

@@ -6,15 +6,13 @@ import pandas as pd
 import pytest
 
 import ibt
-from ibt.distill.loop import task_budget
 from ibt.evaluate.rollouts import retention_norm
-from ibt.refine.by_return import REFINE_BUDGETS
 from ibt.runs import front
 
 
 def test_sweep_points_add_the_grid_budget_and_mark_it_as_the_grid_run():
     points = front.sweep_points(["CartPole-v1"], "dqn", ["bc"], {"CartPole-v1": [3, 12]}, [0])
-    budget = task_budget("CartPole-v1").max_leaf_nodes
+    budget = ibt.get_task("CartPole-v1").budget.max_leaf_nodes
     assert [p.leaves for p in points] == [3, None]  # 12 is the budget: the grid run itself
     assert budget == 12
 
@@ -88,7 +86,7 @@ def test_smoke_refinement_budget_is_tiny_and_keeps_the_task_stages():
     cfg = ibt.config("smoke")
     config = front.refine_config(cfg, "CartPole-v1", max_leaves=3)
     assert config.episodes <= 240 and config.max_leaves == 3
-    assert config.stages == REFINE_BUDGETS["CartPole-v1"].stages
+    assert config.stages == ibt.get_task("CartPole-v1").refine.stages
 
 
 def test_report_part_renders_targets_and_the_front(tmp_path):

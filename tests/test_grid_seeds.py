@@ -9,7 +9,7 @@ from ibt.runs import grid
 def test_highway_keeps_three_seeds_the_others_five():
     cells = grid.seed_budget(grid.grid(
         ["CartPole-v1", "highway-fast-v0"], ["dqn"], ["bc"], range(grid.PAPER_SEEDS)))
-    seeds = {t: sorted(c.seed for c in cells if c.task == t)
+    seeds = {t: sorted(c.seed for c in cells if c.task.name == t)
              for t in ("CartPole-v1", "highway-fast-v0")}
     assert seeds == {"CartPole-v1": [0, 1, 2, 3, 4], "highway-fast-v0": [0, 1, 2]}
 

@@ -33,7 +33,7 @@ from ibt.distill import schedules
 from ibt.evaluate.policies import CompiledTree
 from ibt.evaluate.rollouts import TRAIN_SEED_BASE, rollout, selection_seeds
 from ibt.experts.expert import Expert
-from ibt.tasks.catalogue import Task, get_task
+from ibt.tasks.task import Task
 
 
 @dataclass(frozen=True)
@@ -48,43 +48,6 @@ METHODS: dict[str, Method] = {
     "viper": Method(schedules.first_only(), weighted=True),
     "imitation-bt": Method(schedules.linear(), weighted=True),
 }
-
-
-@dataclass(frozen=True)
-class TaskBudget:
-    """Per-task settings shared by every method: tree size, label and selection budgets."""
-
-    max_leaf_nodes: int | None = None
-    max_depth: int | None = None
-    ccp_alpha: float = 0.0
-    labels_per_iteration: int = 1000
-    # fewer iterations than the paper's 50 where the environment is too slow for the full grid
-    max_iterations: int | None = None
-    # more held-out episodes per candidate tree where returns are noisy: the best of 50 trees
-    # on few episodes is often a lucky one (the profile's count is multiplied by this)
-    selection_scale: int = 1
-
-
-DEFAULT_MAX_LEAF_NODES = 16  # the leaf limit of tasks without a budget (a readable BT)
-TASK_BUDGETS: dict[str, TaskBudget] = {
-    # the size sweep (notebook 03): 8 leaves keep 97.7 % of the DQN expert, 12 and 16 keep > 99 %
-    "CartPole-v1": TaskBudget(max_leaf_nodes=12, labels_per_iteration=1000),
-    "Acrobot-v1": TaskBudget(max_leaf_nodes=16, labels_per_iteration=1000),
-    "MountainCar-v0": TaskBudget(max_leaf_nodes=8, labels_per_iteration=1000),
-    "LunarLander-v3": TaskBudget(max_leaf_nodes=32, labels_per_iteration=2000),
-    "CliffWalking-v1": TaskBudget(max_leaf_nodes=48, labels_per_iteration=200),
-    "FrozenLake-v1": TaskBudget(max_leaf_nodes=16, labels_per_iteration=100),
-    # a slow simulator: 10 iterations take 3-23 min here (plus evaluation), 50 one to two hours
-    "highway-fast-v0": TaskBudget(max_leaf_nodes=16, labels_per_iteration=300,
-                                  max_iterations=10),
-    # 20 selection episodes let a lucky tree win (DQN seed 0 kept 92.6 %); 100 pick stably
-    "PackageDelivery-v0": TaskBudget(max_leaf_nodes=32, labels_per_iteration=1000,
-                                     selection_scale=5),
-}
-
-
-def task_budget(task: str | Task) -> TaskBudget:
-    return TASK_BUDGETS.get(get_task(task).name, TaskBudget(max_leaf_nodes=DEFAULT_MAX_LEAF_NODES))
 
 
 @dataclass(frozen=True)
@@ -123,9 +86,9 @@ class DistillConfig:
         return out
 
     @classmethod
-    def for_task(cls, task: str | Task, **overrides: Any) -> DistillConfig:
-        """The task's budget and size limits, with ``overrides`` on top."""
-        b = task_budget(task)
+    def for_task(cls, task: Task, **overrides: Any) -> DistillConfig:
+        """The task's budget and size limits (its catalogue entry), with ``overrides`` on top."""
+        b = task.budget
         base = {"max_leaf_nodes": b.max_leaf_nodes, "max_depth": b.max_depth,
                 "ccp_alpha": b.ccp_alpha, "labels_per_iteration": b.labels_per_iteration}
         return cls(**{**base, **overrides})
@@ -180,10 +143,9 @@ def tree_signature(tree: DecisionTreeClassifier) -> bytes:
 _signature = tree_signature  # the former private name (kept for existing callers)
 
 
-def distill(task: str | Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
+def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
             progress: bool = True) -> Distillation:
     """Run the interactive loop; see the module docstring."""
-    task = get_task(task)
     if expert.n_actions != task.n_actions:
         raise ValueError(f"the expert has {expert.n_actions} actions, {task.name} has "
                          f"{task.n_actions}")

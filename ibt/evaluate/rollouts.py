@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ibt.tasks.catalogue import Task, get_task
+from ibt.tasks.task import Task
 
 FINAL_SEED_BASE = 1_000_000  # final evaluation: the same episodes for every method and expert
 SELECTION_SEED_BASE = 2_000_000  # best-tree selection (held out from training and final)
@@ -58,7 +58,7 @@ ActFn = Callable[[np.ndarray], np.ndarray]
 IndexedActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (obs, episode indices)
 
 
-def rollout(task: str | Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_envs: int = 16,
+def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_envs: int = 16,
             collect: bool = False, budget: int | None = None,
             env_kwargs: dict[str, Any] | None = None,
             on_step: Callable[[np.ndarray, np.ndarray], None] | None = None,
@@ -72,7 +72,6 @@ def rollout(task: str | Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *
     the rows belong to (how one batch runs several policies side by side, see
     ``ibt.refine.by_return``).
     """
-    task = get_task(task)
     seeds = list(seeds)
     n_slots = max(1, min(n_envs, len(seeds)))
     envs = [task.make_env(**(env_kwargs or {})) for _ in range(n_slots)]
@@ -129,27 +128,36 @@ def rollout(task: str | Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *
     return Rollout(returns[:used], lengths[:used], infos[:used], terminal[:used], collected)
 
 
-def evaluate_policy(task: str | Task, policy: Any, seeds: Sequence[int], **kwargs: Any
-                    ) -> Rollout:
-    """Episodes of a policy (anything with ``act``) on the given seeds."""
-    return rollout(task, policy.act, seeds, **kwargs)
+def _rate(values: Any) -> float:
+    return float(np.mean(values)) if len(values) else float("nan")
 
 
-def episode_metrics(task: str | Task, result: Rollout) -> dict[str, float]:
-    """Task-specific outcome rates beside the return (success, collisions, battery failures)."""
-    name = get_task(task).name
+#: How each outcome rate of :data:`ibt.tasks.settings.METRICS` is read off a rollout.
+METRIC_FUNCTIONS: dict[str, tuple[str, Callable[[Rollout], float]]] = {
+    "success_if_positive": ("success_rate", lambda r: _rate(r.returns > 0)),
+    "success_if_terminated": ("success_rate", lambda r: _rate(r.terminated)),
+    "collision_rate": ("collision_rate",
+                       lambda r: _rate([bool(i.get("crashed")) for i in r.final_infos])),
+    "battery_failure_rate": ("battery_failure_rate",
+                             lambda r: _rate([bool(i.get("battery_failure"))
+                                              for i in r.final_infos])),
+    "delivered": ("delivered", lambda r: _rate([i.get("delivered_heavy", 0)
+                                                + i.get("delivered_light", 0)
+                                                for i in r.final_infos])),
+}
+
+
+def episode_metrics(task: Task, result: Rollout) -> dict[str, float]:
+    """The task's outcome rates beside the return (``Task.metrics``: success, collisions,
+    battery failures, deliveries)."""
     out: dict[str, float] = {}
-    if name == "FrozenLake-v1":
-        out["success_rate"] = float(np.mean(result.returns > 0))
-    elif name == "CliffWalking-v1":
-        out["success_rate"] = float(np.mean(result.terminated))
-    elif name == "highway-fast-v0":
-        out["collision_rate"] = float(np.mean([bool(i.get("crashed")) for i in result.final_infos]))
-    elif name == "PackageDelivery-v0":
-        out["battery_failure_rate"] = float(
-            np.mean([bool(i.get("battery_failure")) for i in result.final_infos]))
-        out["delivered"] = float(np.mean([i.get("delivered_heavy", 0) + i.get("delivered_light", 0)
-                                          for i in result.final_infos]))
+    for metric in task.metrics:
+        try:
+            column, measure = METRIC_FUNCTIONS[metric]
+        except KeyError:
+            raise ValueError(f"{task.name} asks for an unknown metric {metric!r}; known: "
+                             f"{', '.join(METRIC_FUNCTIONS)}") from None
+        out[column] = measure(result)
     return out
 
 

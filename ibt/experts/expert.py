@@ -5,9 +5,8 @@ weights come from: Q-values for DQN, log pi(a|s) for PPO and A2C (the paper's st
 Observation normalisation, where training used ``VecNormalize``, is wrapped inside the expert,
 so callers always pass raw observations.
 
-Hyperparameters live in :data:`HYPERPARAMS`, one row per (task, algo). Rows marked ``zoo`` are
-taken from rl-baselines3-zoo (``hyperparams/{dqn,ppo,a2c}.yml``, commit 22e3ff24) except that the
-network stays the paper's 2x64 MLP; rows marked ``ours`` were tuned here.
+Hyperparameters are part of each task's catalogue entry (``Task.experts``, written in
+:mod:`ibt.tasks.builtin`, where their sources are named).
 """
 
 from __future__ import annotations
@@ -19,7 +18,6 @@ import shutil
 import tempfile
 import time
 import zipfile
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +25,8 @@ import numpy as np
 
 from ibt.files import atomic_target, atomic_write_text
 from ibt.paths import DATA_DIR
-from ibt.tasks.catalogue import Task, get_task, resolve_task
-
-ALGOS = ("dqn", "ppo", "a2c")
-NET_ARCH = (64, 64)  # the paper's 2x64 MLP
-ZOO_DQN_NET = (256, 256)  # the zoo's DQN network, where 2x64 missed the bar
+from ibt.tasks.settings import ALGOS, Hyperparams
+from ibt.tasks.task import Task
 
 
 def linear_schedule(start: float):
@@ -43,130 +38,20 @@ def linear_schedule(start: float):
     return schedule
 
 
-@dataclass(frozen=True)
-class Hyperparams:
-    """How one (task, algo) expert is trained."""
-
-    timesteps: int
-    n_envs: int = 1
-    # VecNormalize: True normalises observations and rewards (the zoo's ``normalize: true``);
-    # "reward" only rewards, for observations VecNormalize cannot scale (MultiDiscrete)
-    normalize: bool | str = False
-    kwargs: tuple[tuple[str, Any], ...] = ()
-    source: str = "ours"  # "zoo:<file>" or "ours"
-    net_arch: tuple[int, ...] = NET_ARCH
-    train_env: tuple[tuple[str, Any], ...] = ()  # env kwargs used while training only
-
-    def algo_kwargs(self) -> dict[str, Any]:
-        out = {}
-        for key, value in self.kwargs:
-            if isinstance(value, str) and value.startswith("lin_"):
-                value = linear_schedule(float(value[4:]))
-            out[key] = value
-        return out
+def algo_kwargs(hp: Hyperparams) -> dict[str, Any]:
+    """The SB3 constructor's keyword arguments of a hyperparameter row (``lin_X`` strings
+    become linear schedules)."""
+    out = {}
+    for key, value in hp.kwargs:
+        if isinstance(value, str) and value.startswith("lin_"):
+            value = linear_schedule(float(value[4:]))
+        out[key] = value
+    return out
 
 
-def _hp(timesteps: float, n_envs: int = 1, normalize: bool | str = False, source: str = "ours",
-        net_arch: tuple[int, ...] = NET_ARCH, train_env: dict[str, Any] | None = None,
-        **kwargs: Any) -> Hyperparams:
-    return Hyperparams(int(timesteps), n_envs, normalize, tuple(sorted(kwargs.items())), source,
-                       net_arch, tuple(sorted((train_env or {}).items())))
-
-
-_ZOO_DQN = "zoo:hyperparams/dqn.yml"
-_ZOO_PPO = "zoo:hyperparams/ppo.yml"
-_ZOO_A2C = "zoo:hyperparams/a2c.yml"
-# dict[str, Any]: they fill _hp's keyword arguments (mypy would match them to its parameters)
-_ZOO_DQN_CLASSIC: dict[str, Any] = {
-    "learning_rate": 6.3e-4, "batch_size": 128, "buffer_size": 50_000, "learning_starts": 0,
-    "gamma": 0.99, "target_update_interval": 250, "train_freq": 4, "gradient_steps": -1,
-    "exploration_fraction": 0.12, "exploration_final_eps": 0.1}
-_OURS_TABULAR_DQN: dict[str, Any] = {
-    "learning_rate": 1e-3, "batch_size": 64, "buffer_size": 50_000, "learning_starts": 1000,
-    "gamma": 0.99, "target_update_interval": 500, "train_freq": 4, "exploration_fraction": 0.3,
-    "exploration_final_eps": 0.02}
-_OURS_TABULAR_PPO: dict[str, Any] = {"n_steps": 128, "batch_size": 256, "gamma": 0.99,
-                                     "ent_coef": 0.01}
-_OURS_TABULAR_A2C: dict[str, Any] = {"n_steps": 8, "gamma": 0.99, "ent_coef": 0.01}
-_HIGHWAY_DQN: dict[str, Any] = {
-    "learning_rate": 5e-4, "buffer_size": 15_000, "learning_starts": 200, "batch_size": 32,
-    "gamma": 0.8, "train_freq": 1, "gradient_steps": 1, "target_update_interval": 50,
-    "exploration_fraction": 0.7}
-_HIGHWAY_PPO: dict[str, Any] = {"n_steps": 128, "batch_size": 64, "n_epochs": 10,
-                                "learning_rate": 5e-4, "gamma": 0.8}
-
-#: One row per (task, algo). ``source`` names where the values come from; every row keeps the
-#: paper's 2x64 MLP unless it missed the quality bar (then ``net_arch`` says what was used), and
-#: deviations from the zoo's ``timesteps`` are noted in ``source``.
-HYPERPARAMS: dict[tuple[str, str], Hyperparams] = {
-    ("CartPole-v1", "ppo"): _hp(1e5, 8, source=_ZOO_PPO, n_steps=32, batch_size=256,
-                                gae_lambda=0.8, gamma=0.98, n_epochs=20, ent_coef=0.0,
-                                learning_rate="lin_0.001", clip_range="lin_0.2"),
-    ("CartPole-v1", "dqn"): _hp(1e5, source=_ZOO_DQN + " (5e4 steps there)",
-                                net_arch=ZOO_DQN_NET,
-                                learning_rate=2.3e-3, batch_size=64, buffer_size=100_000,
-                                learning_starts=1000, gamma=0.99, target_update_interval=10,
-                                train_freq=256, gradient_steps=128, exploration_fraction=0.16,
-                                exploration_final_eps=0.04),
-    ("CartPole-v1", "a2c"): _hp(5e5, 8, source=_ZOO_A2C, ent_coef=0.0),
-    ("Acrobot-v1", "dqn"): _hp(1e5, source=_ZOO_DQN, net_arch=ZOO_DQN_NET, **_ZOO_DQN_CLASSIC),
-    ("Acrobot-v1", "ppo"): _hp(5e5, 16, True, source=_ZOO_PPO + " (1e6 steps there)",
-                               n_steps=256, gae_lambda=0.94, gamma=0.99, n_epochs=4,
-                               ent_coef=0.0),
-    ("Acrobot-v1", "a2c"): _hp(5e5, 16, True, source=_ZOO_A2C, ent_coef=0.0),
-    ("MountainCar-v0", "dqn"): _hp(1.2e5, source=_ZOO_DQN, net_arch=ZOO_DQN_NET,
-                                   learning_rate=4e-3, batch_size=128,
-                                   buffer_size=10_000, learning_starts=1000, gamma=0.98,
-                                   target_update_interval=600, train_freq=16, gradient_steps=8,
-                                   exploration_fraction=0.2, exploration_final_eps=0.07),
-    ("MountainCar-v0", "ppo"): _hp(1e6, 16, True, source=_ZOO_PPO, n_steps=16, gae_lambda=0.98,
-                                   gamma=0.99, n_epochs=4, ent_coef=0.0),
-    ("MountainCar-v0", "a2c"): _hp(1e6, 16, True, source=_ZOO_A2C, ent_coef=0.0),
-    ("LunarLander-v3", "dqn"): _hp(3e5, source=_ZOO_DQN + " (1e5 steps there)",
-                                   net_arch=ZOO_DQN_NET,
-                                   **{**_ZOO_DQN_CLASSIC, "buffer_size": 100_000}),
-    ("LunarLander-v3", "ppo"): _hp(1e6, 16, source=_ZOO_PPO, n_steps=1024, batch_size=64,
-                                   gae_lambda=0.98, gamma=0.999, n_epochs=4, ent_coef=0.01),
-    # 1e6 steps gave 140.7 +- 132.7, below the 150 bar; 1.5e6 (the issue's limit) reaches it
-    ("LunarLander-v3", "a2c"): _hp(1.5e6, 8, source=_ZOO_A2C + " (2e5 steps there)",
-                                   gamma=0.995, n_steps=5, learning_rate="lin_0.00083",
-                                   ent_coef=1e-5),
-    ("CliffWalking-v1", "dqn"): _hp(5e4, **_OURS_TABULAR_DQN),
-    # on-policy agents settle on "never approach the cliff" (return -100) unless they explore
-    # more and, while training only, get episodes long enough to stumble on the goal
-    ("CliffWalking-v1", "ppo"): _hp(3e5, 8, n_steps=256, batch_size=256, gamma=0.99,
-                                    ent_coef=0.05, train_env={"max_episode_steps": 1000}),
-    ("CliffWalking-v1", "a2c"): _hp(1e6, 8, n_steps=5, gamma=0.99, ent_coef=0.02,
-                                    train_env={"max_episode_steps": 1000}),
-    ("FrozenLake-v1", "dqn"): _hp(5e4, **_OURS_TABULAR_DQN),
-    ("FrozenLake-v1", "ppo"): _hp(1e5, 8, **_OURS_TABULAR_PPO),
-    ("FrozenLake-v1", "a2c"): _hp(1e5, 8, **_OURS_TABULAR_A2C),
-    # the paper's 2x64 MLP reached 18.1 with 34 % collisions at 2e4 steps: the script's own
-    # 256x256 network instead
-    ("highway-fast-v0", "dqn"): _hp(2e4, source="highway-env:scripts/sb3_highway_dqn.py",
-                                    net_arch=ZOO_DQN_NET, **_HIGHWAY_DQN),
-    ("highway-fast-v0", "ppo"): _hp(2e4, 6, source="highway-env:scripts/sb3_highway_ppo.py",
-                                    **_HIGHWAY_PPO),
-    ("highway-fast-v0", "a2c"): _hp(2e4, 6, learning_rate=5e-4, gamma=0.8, n_steps=16),
-    ("PackageDelivery-v0", "dqn"): _hp(2e5, **{**_OURS_TABULAR_DQN, "gamma": 0.98}),
-    # with ent_coef 0.01 and 3e5 steps both settled on charging forever (return -20)
-    ("PackageDelivery-v0", "ppo"): _hp(5e5, 8, n_steps=512, batch_size=256, gamma=0.99,
-                                       ent_coef=0.05),
-    # below its bar (excluded in the manifest): also with the zoo's A2C recipes and reward
-    # normalisation, 1.5e6 steps each (16 envs n_steps 5 ent 0.01 or 0; 8 envs Adam + GAE 0.9):
-    # every one charges forever (-20.0)
-    ("PackageDelivery-v0", "a2c"): _hp(5e5, 8, n_steps=16, gamma=0.99, ent_coef=0.05),
-}
-
-
-def hyperparams(task: str | Task, algo: str) -> Hyperparams:
-    task = get_task(task)
-    algo = check_algo(algo)
-    try:
-        return HYPERPARAMS[(task.name, algo)]
-    except KeyError:
-        raise KeyError(f"no hyperparameters for ({task.name}, {algo}); add a row to "
-                       "ibt.experts.expert.HYPERPARAMS") from None
+def hyperparams(task: Task, algo: str) -> Hyperparams:
+    """How the task's ``algo`` expert is trained (its catalogue entry)."""
+    return task.hyperparams(check_algo(algo))
 
 
 def check_algo(algo: str) -> str:
@@ -182,9 +67,9 @@ def _sb3_class(algo: str):
     return {"dqn": DQN, "ppo": PPO, "a2c": A2C}[check_algo(algo)]
 
 
-def expert_path(task: str | Task, algo: str, root: Path | None = None) -> Path:
+def expert_path(task: Task, algo: str, root: Path | None = None) -> Path:
     """``data/experts/<task>/<algo>.zip`` (or under ``root``)."""
-    return (root or DATA_DIR / "experts") / get_task(task).name / f"{check_algo(algo)}.zip"
+    return (root or DATA_DIR / "experts") / task.name / f"{check_algo(algo)}.zip"
 
 
 class Expert:
@@ -241,26 +126,25 @@ def _norm_path(path: Path) -> Path:
     return path.with_suffix(".obs_norm.json")
 
 
-def load_expert(task: str | Task, algo: str, path: str | Path | None = None) -> Expert:
+def load_expert(task: Task, algo: str, path: str | Path | None = None) -> Expert:
     """Load a committed (or given) checkpoint; each file is read once per process.
 
     Raises ``FileNotFoundError`` for a missing file and ``ValueError`` for a corrupt checkpoint
     or one whose action/observation spaces do not match the task.
     """
-    task = get_task(task)
     algo = check_algo(algo)
     path = Path(path) if path is not None else expert_path(task, algo)
     if not path.exists():
         raise FileNotFoundError(f"no expert checkpoint at {path}; {_train_hint(task, algo, path)}")
     stat = path.stat()
-    return _load_cached(task.name, algo, str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    return _load_cached(task, algo, str(path.resolve()), stat.st_mtime_ns, stat.st_size)
 
 
 def _train_hint(task: Task, algo: str, path: Path | None = None) -> str:
     """How to get a checkpoint for (task, algo) at ``path``: a command that works."""
-    if (task.name, algo) not in HYPERPARAMS:
+    if algo not in dict(task.experts):
         return ("train one with Stable-Baselines3 (model.save) and pass it with --checkpoint "
-                "(`python -m ibt train` knows the tasks of ibt.experts.expert.HYPERPARAMS only)")
+                "(`python -m ibt train` trains the experts of the task catalogue only)")
     command = f"python -m ibt train {task.name} --algo {algo}"
     default = expert_path(task, algo)
     if path is None or path.resolve() == default.resolve():
@@ -289,13 +173,12 @@ def _checkpoint_algo(path: str | Path) -> str | None:
 
 
 @functools.lru_cache(maxsize=64)
-def _load_cached(task_name: str, algo: str, path: str, _mtime: int, _size: int) -> Expert:
+def _load_cached(task: Task, algo: str, path: str, _mtime: int, _size: int) -> Expert:
     import torch
 
     # Experts answer small batches: torch's thread pool only adds overhead (and contention when
     # processes run side by side), and one thread keeps results bit-identical across runs.
     torch.set_num_threads(1)
-    task = resolve_task(task_name)
     if Path(path).is_dir():
         inside = sorted(Path(path).glob(f"**/{algo}.zip"))[:1]
         raise ValueError(f"{path} is a folder, not a Stable-Baselines3 checkpoint; pass the "
@@ -344,7 +227,7 @@ def _final_score(callback: Any) -> float:
     return float(np.mean(results[-1])) if results else -np.inf
 
 
-def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
+def train_expert(task: Task, algo: str, path: str | Path | None = None, *,
                  seed: int = 0, timesteps: int | None = None, progress: bool = True
                  ) -> dict[str, Any]:
     """Train an expert with its table hyperparameters and save it atomically to ``path``.
@@ -360,7 +243,6 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
     from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
-    task = get_task(task)
     algo = check_algo(algo)
     hp = hyperparams(task, algo)
     steps = int(timesteps if timesteps is not None else hp.timesteps)
@@ -375,7 +257,7 @@ def train_expert(task: str | Task, algo: str, path: str | Path | None = None, *,
                             gamma=dict(hp.kwargs).get("gamma", 0.99))
     elif hp.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True)
-    kwargs = hp.algo_kwargs()
+    kwargs = algo_kwargs(hp)
     policy_kwargs = {"net_arch": list(hp.net_arch)}
     model = _sb3_class(algo)("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
                              policy_kwargs=policy_kwargs, **kwargs)

@@ -9,6 +9,7 @@ expert in progress. ``random_baselines`` writes ``data/experts/random.csv``.
 from __future__ import annotations
 
 import fcntl
+import importlib
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,8 @@ from ibt.evaluate.rollouts import episode_metrics, final_seeds, rollout
 from ibt.experts.expert import ALGOS, expert_path, load_expert, train_expert
 from ibt.files import atomic_write_csv, file_digest
 from ibt.paths import DATA_DIR
-from ibt.tasks.catalogue import TASKS, get_task
+from ibt.tasks.catalogue import TASKS
+from ibt.tasks.task import Task
 
 MANIFEST_COLUMNS = ["task", "algo", "timesteps", "seed", "mean_return", "std_return",
                     "n_episodes", "success_rate", "collision_rate", "battery_failure_rate",
@@ -34,41 +36,13 @@ MANIFEST_COLUMNS = ["task", "algo", "timesteps", "seed", "mean_return", "std_ret
 #: last two stay in the tables, marked, and are left out of every claim and every count.
 STATUSES = ("ok", "excluded", "constant-action")
 
-#: Quality bars of the experts (mean return over 100 episodes unless the text says otherwise).
-BARS: dict[str, str] = {
-    "CartPole-v1": "mean_return >= 475",
-    "Acrobot-v1": "mean_return >= -100",
-    "MountainCar-v0": "mean_return >= -130 (DQN and one of PPO/A2C)",
-    "LunarLander-v3": "mean_return >= 200 (PPO, DQN); >= 150 (A2C)",
-    "CliffWalking-v1": "mean_return == -13 (optimal)",
-    "FrozenLake-v1": "success_rate == 1.0",
-    "highway-fast-v0": "mean_return >= 20 and collision_rate <= 0.25 (DQN, PPO)",
-    "PackageDelivery-v0": "mean_return >= 0.9 x scripted policy",
-}
+def meets_bar(task: Task, algo: str, row: dict[str, Any], scripted: float | None = None
+              ) -> bool:
+    """Whether an expert's evaluation row passes its task's quality bar (``Task.bar``)."""
+    return task.bar(algo, row, scripted)
 
 
-def meets_bar(task: str, algo: str, row: dict[str, Any], scripted: float | None = None) -> bool:
-    r = row["mean_return"]
-    if task == "CartPole-v1":
-        return r >= 475
-    if task == "Acrobot-v1":
-        return r >= -100
-    if task == "MountainCar-v0":
-        return r >= -130
-    if task == "LunarLander-v3":
-        return r >= (150 if algo == "a2c" else 200)
-    if task == "CliffWalking-v1":
-        return r >= -13
-    if task == "FrozenLake-v1":
-        return row.get("success_rate", 0.0) >= 1.0
-    if task == "highway-fast-v0":
-        return r >= 20 and row.get("collision_rate", 1.0) <= 0.25
-    if task == "PackageDelivery-v0" and scripted is not None:
-        return r >= 0.9 * scripted
-    return False
-
-
-def evaluate_expert(task: str, algo: str, path: Path | None = None, n_episodes: int = 100
+def evaluate_expert(task: Task, algo: str, path: Path | None = None, n_episodes: int = 100
                     ) -> dict[str, Any]:
     expert = load_expert(task, algo, path)
     result = rollout(task, expert.act, final_seeds(n_episodes))
@@ -78,11 +52,14 @@ def evaluate_expert(task: str, algo: str, path: Path | None = None, n_episodes: 
     return row
 
 
-def scripted_return(n_episodes: int = 100) -> float:
-    """Mean return of the hand-written package-delivery policy (its bar's reference)."""
-    from ibt.envs.package_delivery import scripted_policy_batch
-
-    return rollout("PackageDelivery-v0", scripted_policy_batch, final_seeds(n_episodes)).mean
+def scripted_return(task: Task, n_episodes: int = 100) -> float:
+    """Mean return of the task's scripted policy (``Task.scripted_policy``, its bar's
+    reference)."""
+    if task.scripted_policy is None:
+        raise LookupError(f"{task.name} has no scripted policy; its bar cannot need one")
+    module, _, name = task.scripted_policy.partition(":")
+    policy = getattr(importlib.import_module(module), name)
+    return rollout(task, policy, final_seeds(n_episodes)).mean
 
 
 def _read_manifest(path: Path) -> pd.DataFrame:
@@ -112,7 +89,7 @@ def _record_locked(row: dict[str, Any], manifest: Path) -> None:
     atomic_write_csv(manifest, frame.reindex(columns=MANIFEST_COLUMNS))
 
 
-def train_missing(tasks: Iterable[str] | None = None, algos: Iterable[str] = ALGOS, *,
+def train_missing(tasks: Iterable[Task] | None = None, algos: Iterable[str] = ALGOS, *,
                   refresh: bool = False, root: Path | None = None, seed: int = 0,
                   timesteps: int | None = None, progress: bool = True,
                   refresh_before: float | None = None) -> pd.DataFrame:
@@ -123,12 +100,12 @@ def train_missing(tasks: Iterable[str] | None = None, algos: Iterable[str] = ALG
     """
     root = root or DATA_DIR / "experts"
     manifest = root / "manifest.csv"
-    pairs = [(get_task(t).name, a) for t in (tasks or list(TASKS)) for a in algos]
-    scripted = None
+    pairs = [(t, a) for t in (tasks or list(TASKS.values())) for a in algos]
+    scripted: dict[str, float] = {}
     for task, algo in tqdm(pairs, desc="experts", disable=not progress):
         path = expert_path(task, algo, root)
         existing = _read_manifest(manifest)
-        have_row = ((existing["task"] == task) & (existing["algo"] == algo)).any()
+        have_row = ((existing["task"] == task.name) & (existing["algo"] == algo)).any()
         stale = refresh or (refresh_before is not None and path.exists()
                             and path.stat().st_mtime < refresh_before)
         if path.exists() and have_row and not stale:
@@ -136,10 +113,10 @@ def train_missing(tasks: Iterable[str] | None = None, algos: Iterable[str] = ALG
         facts = train_expert(task, algo, path, seed=seed, timesteps=timesteps,
                              progress=progress)
         row = {**facts, **evaluate_expert(task, algo, path)}
-        if task == "PackageDelivery-v0":
-            scripted = scripted if scripted is not None else scripted_return()
-        row["bar"] = BARS.get(task, "")
-        row["meets_bar"] = meets_bar(task, algo, row, scripted)
+        if task.scripted_policy is not None and task.name not in scripted:
+            scripted[task.name] = scripted_return(task)
+        row["bar"] = task.bar.describe()
+        row["meets_bar"] = meets_bar(task, algo, row, scripted.get(task.name))
         row["note"] = "" if row["meets_bar"] else "below the bar"
         row.update(expert_status(task, algo, row["meets_bar"], path))
         row["sha256"] = file_digest(path)
@@ -147,7 +124,7 @@ def train_missing(tasks: Iterable[str] | None = None, algos: Iterable[str] = ALG
     return _read_manifest(manifest)
 
 
-def action_counts(task: str, algo: str, path: Path | None = None, n_episodes: int = 100
+def action_counts(task: Task, algo: str, path: Path | None = None, n_episodes: int = 100
                   ) -> tuple[dict[int, int], int]:
     """How often the expert takes each action over the final episodes, and the step count."""
     import numpy as np
@@ -162,7 +139,7 @@ def action_counts(task: str, algo: str, path: Path | None = None, n_episodes: in
     return {a: int(n) for a, n in enumerate(counts) if n}, int(counts.sum())
 
 
-def expert_status(task: str, algo: str, bar_met: bool, path: Path | None = None,
+def expert_status(task: Task, algo: str, bar_met: bool, path: Path | None = None,
                   n_episodes: int = 100) -> dict[str, str]:
     """``status`` and ``status_evidence`` of one expert (see :data:`STATUSES`).
 
@@ -170,8 +147,8 @@ def expert_status(task: str, algo: str, bar_met: bool, path: Path | None = None,
     final episodes makes it ``constant-action``; else ``ok``. The evidence names the action
     counts it was measured on.
     """
-    spec = get_task(task)
-    counts, steps = action_counts(spec.name, algo, path, n_episodes)
+    spec = task
+    counts, steps = action_counts(task, algo, path, n_episodes)
     shares = ", ".join(f"{spec.action_names[a]} {n}" for a, n in
                        sorted(counts.items(), key=lambda kv: -kv[1]))
     measured = f"actions over the {n_episodes} final episodes ({steps} steps): {shares}"
@@ -185,17 +162,19 @@ def expert_status(task: str, algo: str, bar_met: bool, path: Path | None = None,
     return {"status": "ok", "status_evidence": measured}
 
 
-def record_statuses(root: Path | None = None, tasks: Iterable[str] | None = None,
+def record_statuses(root: Path | None = None, tasks: Iterable[Task] | None = None,
                     progress: bool = True) -> pd.DataFrame:
     """Measure and write the status of every expert of the manifest (or of ``tasks``)."""
     root = root or DATA_DIR / "experts"
     manifest = root / "manifest.csv"
     frame = _read_manifest(manifest)
-    wanted = None if tasks is None else {get_task(t).name for t in tasks}
-    rows = [r for r in frame.to_dict("records") if wanted is None or r["task"] in wanted]
+    # the manifest names its tasks: they are looked up among the tasks given (all registered)
+    by_name = {t.name: t for t in (tasks if tasks is not None else TASKS.values())}
+    rows = [r for r in frame.to_dict("records") if r["task"] in by_name]
     for row in tqdm(rows, desc="expert status", disable=not progress):
-        path = expert_path(row["task"], row["algo"], root)
-        row.update(expert_status(row["task"], row["algo"], bool(row["meets_bar"]), path))
+        task = by_name[row["task"]]
+        path = expert_path(task, row["algo"], root)
+        row.update(expert_status(task, row["algo"], bool(row["meets_bar"]), path))
         record(row, manifest)
     return _read_manifest(manifest)
 
@@ -211,12 +190,11 @@ def expert_statuses(root: Path | None = None) -> dict[tuple[str, str], str]:
             for t, a, s, m in zip(frame["task"], frame["algo"], status, bar, strict=True)}
 
 
-def random_baselines(tasks: Iterable[str] | None = None, n_episodes: int = 100,
+def random_baselines(tasks: Iterable[Task] | None = None, n_episodes: int = 100,
                      path: Path | None = None) -> pd.DataFrame:
     """Mean return of the uniform random policy per task (normalises retention)."""
     rows = []
-    for name in tasks or list(TASKS):
-        task = get_task(name)
+    for task in tasks or list(TASKS.values()):
         result = rollout(task, RandomPolicy(task.n_actions, seed=0).act, final_seeds(n_episodes))
         rows.append({"task": task.name, "mean_return": round(result.mean, 3),
                      "std_return": round(result.std, 3), "n_episodes": n_episodes})
@@ -231,10 +209,10 @@ def random_baselines(tasks: Iterable[str] | None = None, n_episodes: int = 100,
 
 def expert_manifest(task: str | None = None, algo: str | None = None,
                     root: Path | None = None) -> pd.DataFrame:
-    """Rows of the committed experts' manifest (all, or one task and/or algo)."""
+    """Rows of the committed experts' manifest (all, or one task name and/or algo)."""
     frame = _read_manifest((root or DATA_DIR / "experts") / "manifest.csv")
     if task is not None:
-        frame = frame[frame["task"] == get_task(task).name]
+        frame = frame[frame["task"] == task]
     if algo is not None:
         frame = frame[frame["algo"] == algo]
     return frame

@@ -32,7 +32,7 @@ Deterministic given the seed: episode seeds are counted, CMA-ES samples from a s
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,85 +46,18 @@ from ibt.evaluate.rollouts import (
     selection_seeds,
 )
 from ibt.refine.tree_arrays import TreeArrays
-from ibt.tasks.catalogue import Task
+from ibt.tasks.settings import REFINE_STAGES, RefineConfig
+from ibt.tasks.task import Task
 
-STAGES = ("cma", "leaves", "prune", "shrink")
-
-
-@dataclass(frozen=True)
-class RefineConfig:
-    """Everything that determines a refinement (with the source tree and the seed)."""
-
-    stages: tuple[str, ...] = ("cma", "leaves", "prune", "cma")
-    episodes: int = 20_000  # hard budget of refinement episodes over all stages
-    cma_generations: int = 60  # per CMA stage (stops early when the budget runs out)
-    cma_episodes: int = 16  # episodes per candidate and generation
-    cma_popsize: int | None = None  # None: CMA-ES's default, 4 + 3 ln(n)
-    cma_sigma: float = 0.3  # initial step, in spreads of each threshold's feature
-    sweep_episodes: int = 40  # episodes per candidate in the leaf and prune sweeps
-    sweep_rounds: int = 8  # at most this many accepted changes per sweep stage
-    prune_tolerance: float = 0.0  # a cut may cost this much mean return (task units)
-    max_leaves: int | None = None  # prune (by least loss) until the tree is this small
-    selection_episodes: int = 100  # held-out episodes choosing among the stages' results
-    n_envs: int = 64  # environments stepped side by side
-
-    def __post_init__(self) -> None:
-        unknown = [s for s in self.stages if s not in STAGES]
-        if unknown:
-            raise ValueError(f"unknown refinement stage(s) {unknown}; expected {STAGES}")
-        for name in ("episodes", "cma_episodes", "sweep_episodes", "selection_episodes",
-                     "n_envs"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"RefineConfig.{name} must be positive, got "
-                                 f"{getattr(self, name)}")
-        if self.cma_sigma <= 0:
-            raise ValueError(f"RefineConfig.cma_sigma must be positive, got {self.cma_sigma}")
-        if self.max_leaves is not None and self.max_leaves < 1:
-            raise ValueError(f"RefineConfig.max_leaves must be at least 1, got "
-                             f"{self.max_leaves}")
-
-    def as_params(self) -> dict[str, Any]:
-        out = asdict(self)
-        out["stages"] = list(self.stages)
-        return out
+STAGES = REFINE_STAGES
 
 
-_SMALL = ("shrink", "cma", "leaves", "prune", "cma")  # cut to the limit, tune, then prune
-
-#: How many source trees Imitation-BT+ refines per task (the best by their selection score);
-#: the refined tree that scores best on held-out episodes wins. Small trees depend on which
-#: subtree survives the cuts, and a refinement of a small task costs seconds: all four.
-REFINE_SOURCES: dict[str, int] = {"CartPole-v1": 4, "Acrobot-v1": 4, "MountainCar-v0": 4,
-                                  "PackageDelivery-v0": 4}
-
-#: Refinement budgets per task, in episodes (``RefineConfig``); tasks absent here use
-#: ``RefineConfig()`` (:func:`task_config`). Measured here: a CartPole episode of a good tree
-#: is 500 steps (~7 ms), Acrobot ~90 steps, MountainCar ~120, PackageDelivery 200 (~2 ms),
-#: LunarLander 300-1,000 (about 35,000 steps/s on one core: 80,000 episodes ~ 13-15 min).
-REFINE_BUDGETS: dict[str, RefineConfig] = {
-    "CartPole-v1": RefineConfig(stages=_SMALL, episodes=8_000, cma_episodes=8,
-                                sweep_episodes=20),
-    "Acrobot-v1": RefineConfig(stages=_SMALL, episodes=8_000, cma_episodes=8,
-                               sweep_episodes=20),
-    "MountainCar-v0": RefineConfig(stages=_SMALL, episodes=10_000),
-    "PackageDelivery-v0": RefineConfig(stages=_SMALL, episodes=10_000),
-    # two CMA-ES runs (the second restarts from the first's mean); the leaf sweep found no
-    # change worth its 3,700 episodes in a trial (DQN, seed 0), so it is left out
-    "LunarLander-v3": RefineConfig(stages=("cma", "cma"), episodes=80_000,
-                                   cma_generations=130, cma_episodes=24),
-    # a slow simulator (about 35 steps/s on one core with a tree deciding, ~0.6 CPU-s an
-    # episode): one CMA-ES run of 1,200 episodes; 522-559 CPU-s a run measured (DQN, 3 seeds)
-    "highway-fast-v0": RefineConfig(stages=("cma",), episodes=1_200, cma_generations=15,
-                                    cma_episodes=8, n_envs=16),
-}
-
-
-def task_config(task: str, **overrides: Any) -> RefineConfig:
-    """The task's refinement budget (:data:`REFINE_BUDGETS`) with ``overrides``; a leaf limit
-    without a cutting stage gets ``shrink`` first."""
+def task_config(task: Task, **overrides: Any) -> RefineConfig:
+    """The task's refinement budget (its catalogue entry's ``refine``) with ``overrides``; a
+    leaf limit without a cutting stage gets ``shrink`` first."""
     from dataclasses import replace
 
-    config = replace(REFINE_BUDGETS.get(task, RefineConfig()), **overrides)
+    config = replace(task.refine, **overrides)
     if config.max_leaves is not None and not {"shrink", "prune"} & set(config.stages):
         config = replace(config, stages=("shrink", *config.stages))
     return config

@@ -29,14 +29,15 @@ from ibt.report.stats import (
     summarise,
     with_expert_status,
 )
+from ibt.tasks.builtin import BUILTIN
 
 REPRODUCED, PARTLY, NOT_REPRODUCED, NOT_MEASURED = (
     "reproduced", "partly", "not reproduced", "not measured")
 VERDICTS = (REPRODUCED, PARTLY, NOT_REPRODUCED, NOT_MEASURED)
 
-SIMPLE_TASKS = ("CartPole-v1", "Acrobot-v1", "MountainCar-v0", "CliffWalking-v1",
-                "FrozenLake-v1", "PackageDelivery-v0")
-STOCHASTIC_TASKS = ("LunarLander-v3", "highway-fast-v0")
+#: The paper's two groups of tasks, from the catalogue entries' ``claim_group``
+SIMPLE_TASKS = tuple(t.name for t in BUILTIN if t.claim_group == "simple")
+STOCHASTIC_TASKS = tuple(t.name for t in BUILTIN if t.claim_group == "stochastic")
 TREE_METHODS = ("bc", "dagger", "viper", "imitation-bt")
 PAPER_BT_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso")  # Fig. 5's three
 

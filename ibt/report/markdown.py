@@ -1,10 +1,11 @@
 """The reproduction report and the README's generated blocks, as markdown.
 
-Everything here is formatting: the numbers come from :mod:`ibt.report.stats` (intervals, aggregates)
-and the verdicts from :mod:`ibt.report.claims`, both reading the committed tables only
-(``data/results/*.csv``, their manifests, ``data/experts/manifest.csv``), so the report is
+Everything here is formatting: the numbers come from :mod:`ibt.report.stats` (intervals,
+aggregates) and the verdicts from :mod:`ibt.report.claims`, both reading the committed tables
+only (``data/results/*.csv``, their manifests, ``data/experts/manifest.csv``), so the report is
 regenerated in seconds and cannot drift from the CSVs. The budgets of the distillation come from
-``ibt.distill.loop.TASK_BUDGETS`` (code, not a result) for the list of deviations from the paper.
+the task catalogue (:mod:`ibt.tasks.builtin`, code, not a result) for the list of deviations
+from the paper.
 
 Cells of a table print ``mean [a, b]`` when ``[a, b]`` is a 95 % percentile bootstrap CI (5 or
 more seeds) and ``mean (a to b, n seeds)`` when it is the range of fewer seeds. Experts whose
@@ -236,8 +237,9 @@ def _names(rows: pd.DataFrame) -> str:
 
 def deviations_markdown(res: Results) -> str:
     """Every way our setup differs from the paper's, with our numbers from the artifacts."""
-    from ibt.distill.loop import TASK_BUDGETS
-    from ibt.tasks.catalogue import get_task
+    from ibt.tasks.builtin import BUILTIN, CLIFFWALKING, FROZENLAKE
+
+    budgets = {task.name: task.budget for task in BUILTIN}
 
     items = []
     experts = res.experts()
@@ -259,7 +261,8 @@ def deviations_markdown(res: Results) -> str:
                      + ", ".join(f"{n} tuned here" if src == "ours" else f"{n} from {src}"
                                  for src, n in experts.hyperparams_source.astype(str)
                                  .str.split(" ").str[0].value_counts().items())
-                     + " (`ibt.experts.expert.HYPERPARAMS`, `data/experts/manifest.csv`). "
+                     + " (the task catalogue, `ibt/tasks/builtin.py`; "
+                     "`data/experts/manifest.csv`). "
                      "The paper's "
                      "experts are not public; a stronger or weaker expert moves every retention "
                      "number.")
@@ -270,18 +273,19 @@ def deviations_markdown(res: Results) -> str:
                          + "; ".join(f"{r.task} {r.algo.upper()}: {r.status} "
                                      f"({r.status_evidence})" for r in bad.itertuples())
                          + ". Their cells stay in the tables, marked.")
-    slow = {t: b.max_iterations for t, b in TASK_BUDGETS.items() if b.max_iterations}
+    slow = {t: b.max_iterations for t, b in budgets.items() if b.max_iterations}
     items.append(f"**Iterations.** The paper runs {PAPER_ITERATIONS} interactive iterations; so "
                  "do we, except " + ", ".join(f"{t} ({n})" for t, n in slow.items())
                  + ", whose simulator is too slow for 50 (see the README's method section).")
     items.append("**Label budgets and tree sizes** are not given in the paper; ours, per task "
                  "(labels per iteration / max leaves): "
                  + ", ".join(f"{t} {b.labels_per_iteration} / {b.max_leaf_nodes}"
-                             for t, b in TASK_BUDGETS.items())
-                 + " (`ibt.distill.loop.TASK_BUDGETS`). Two were set after seeing results: "
+                             for t, b in budgets.items())
+                 + " (the task catalogue, `ibt/tasks/builtin.py`). Two were set after seeing "
+                 "results: "
                  "CartPole's leaf limit (8 to 12, from the size sweep, on the same seeds) and "
                  "PackageDelivery's selection episodes (20 to 100, after a lucky tree won).")
-    scaled = {t: b.selection_scale for t, b in TASK_BUDGETS.items() if b.selection_scale > 1}
+    scaled = {t: b.selection_scale for t, b in budgets.items() if b.selection_scale > 1}
     items.append("**Best-tree selection and evaluation.** The paper keeps \"the best performing "
                  "DT\" without saying how it is scored; we pick the highest mean return on 20 "
                  "held-out episodes (" + ", ".join(f"{20 * s} on {t}" for t, s in scaled.items())
@@ -301,11 +305,11 @@ def deviations_markdown(res: Results) -> str:
                  "for negative returns (MountainCar, Acrobot, CliffWalking); we lead with the "
                  "random-normalised retention (R - R_random) / (R_expert - R_random) and report "
                  "both.")
-    lake, cliff = get_task("FrozenLake-v1"), get_task("CliffWalking-v1")
+    lake, cliff = FROZENLAKE, CLIFFWALKING
     items.append("**Environments.** Gymnasium 1.4's versions: LunarLander-v3 and CliffWalking-v1 "
                  f"(the paper used OpenAI Gym's), CliffWalking capped at "
                  f"{cliff.max_episode_steps} steps, FrozenLake 4x4 with is_slippery="
-                 f"{lake.kwargs.get('is_slippery')} (the paper's two deterministic shortest "
+                 f"{lake.env_kwargs.get('is_slippery')} (the paper's two deterministic shortest "
                  "paths imply it), and highway-env's highway-fast-v0 for the paper's "
                  "unnamed \"Highway\". The package-delivery domain is our own implementation "
                  "of the paper's description (its simulation is not public): rewards, battery "

@@ -1,14 +1,30 @@
-"""A content-addressed cache of computed artifacts, with manifests and atomic writes.
+"""A content-addressed cache of computed artifacts: plain data, verified on every read.
 
-``load_or_compute(kind, params, compute)`` hashes ``kind``, ``params`` (canonical JSON), the
-kind's code version (:data:`CODE_VERSIONS`) and the versions of the packages that change
-results (:data:`KEY_PACKAGES`) into a key; a hit loads ``<cache>/<kind>/<key>/payload.*``, a
-miss calls ``compute()``, writes the payload and then ``manifest.json`` (parameters, code and
-package versions, git sha, wall time), each via a temporary file and a rename. The manifest is
-written last, so its presence means the entry is complete: an interrupted run leaves no entry
-that a later run would trust. A changed computation (its version bumped) or an upgraded package
-is a miss, never a stale hit; ``python -m ibt.runs.cache_admin`` lists and prunes the entries left
-behind.
+``load_or_compute(kind, params, compute, codec=...)`` hashes ``kind``, ``params`` (canonical
+JSON), the kind's code version (:data:`CODE_VERSIONS`) and the versions of the packages that
+change results (:data:`KEY_PACKAGES`) into a key; the entry is the folder
+``<cache>/<kind>/<key>/`` holding ``payload.<suffix>`` and ``manifest.json``.
+
+Payloads are plain data, written and read by the codecs of :mod:`ibt.runs.payloads`: ``json``,
+``csv``, and for our own classes ``distillation`` and ``refinement`` (``.npz``: numeric arrays
+and one JSON document; fitted scikit-learn trees rebuilt exactly from their node arrays) and
+``synthesis`` (``.json``: the row and the BT in the format of ``data/trees/``). Reading one is
+``np.load(allow_pickle=False)`` or ``json``: it never runs code, whoever wrote the file.
+
+On a miss, ``compute()`` runs, then the payload and then ``manifest.json`` (parameters, codec,
+the payload's SHA-256 ``payload_sha256``, code and package versions, git sha, wall time) are
+written, each via a temporary file and a rename. A hit is verified before it is decoded: the
+manifest must parse, name the codec asked for and the same parameters, and record a digest that
+the payload's bytes match. An entry that fails any of these (an edited, truncated or swapped
+payload, a manifest without digest, a payload the codec cannot read) is a miss: it is recomputed
+and overwritten, with one :class:`CacheWarning` naming ``kind/key``. A cache folder that cannot
+be written (read-only) returns the computed value with one warning and writes nothing. A lookup
+with another plain codec than the one the entry was written with is an error
+(:class:`CodecConflict`), never an overwrite: a kind's codec changes with its code version.
+
+A changed computation (its version bumped) or an upgraded package is a miss, never a stale hit;
+``python -m ibt.runs.cache_admin`` lists and prunes the entries left behind, verifies every
+payload against its manifest, and converts the pickled payloads of the past (``migrate-plain``).
 
 With ``IBT_CACHE_READS`` set to a folder, every lookup appends ``kind/key`` to a file there:
 ``make figures`` uses it to list the entries it did not read.
@@ -16,23 +32,23 @@ With ``IBT_CACHE_READS`` set to a folder, every lookup appends ``kind/key`` to a
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
 import os
 import subprocess
 import time
+import warnings
 from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import joblib
-import pandas as pd
+from ibt.files import atomic_write_bytes, atomic_write_text
+from ibt.runs import payloads
 
-from ibt.files import atomic_target, atomic_write_csv, atomic_write_text
-
-CODECS = ("joblib", "json", "csv")
+CODECS = payloads.CODECS  # codec name -> payloads.Codec
 TRACKED_PACKAGES = ("numpy", "scikit-learn", "stable-baselines3", "torch", "gymnasium", "pyeda",
                     "py-trees", "highway-env")
 #: Packages whose upgrade can change a cached result: their versions are part of every key.
@@ -89,7 +105,6 @@ def legacy_cache_key(kind: str, params: dict[str, Any]) -> str:
     return hashlib.sha256(canonical({"kind": kind, "params": params}).encode()).hexdigest()[:16]
 
 
-
 @functools.cache
 def _version(name: str) -> str:
     try:
@@ -116,49 +131,117 @@ def git_sha() -> str:
         return "unknown"
 
 
+def payload_digest(data: bytes) -> str:
+    """The SHA-256 (hex) of a payload's bytes, as its manifest records it (``payload_sha256``)."""
+    return hashlib.sha256(data).hexdigest()
 
 
+def manifest_text(manifest: dict[str, Any]) -> str:
+    """``manifest.json``'s text (sorted keys, one space of indent)."""
+    return json.dumps(manifest, indent=1, sort_keys=True, default=str)
 
 
-def _save(path: Path, value: Any, codec: str) -> None:
-    if codec == "json":
-        atomic_write_text(path, json.dumps(value, indent=1, sort_keys=True, default=str))
-    elif codec == "csv":
-        atomic_write_csv(path, value)
-    else:
-        with atomic_target(path) as tmp:
-            joblib.dump(value, tmp, compress=3)
+class CacheWarning(UserWarning):
+    """A cache entry that could not be used (recomputed) or stored (the value still returned)."""
 
 
-def _load(path: Path, codec: str) -> Any:
-    if codec == "json":
-        return json.loads(path.read_text())
-    if codec == "csv":
-        return pd.read_csv(path)
-    return joblib.load(path)
+class CodecConflict(ValueError):
+    """An entry stored by one plain codec and looked up with another: two call sites disagree
+    about a kind's format (a programming error; the entry is left as it is)."""
+
+
+def read_entry(entry: str | Path, codec: str, params: dict[str, Any] | None = None) -> Any:
+    """The value of the entry in folder ``entry``, verified, or :class:`LookupError` saying why not.
+
+    The manifest must be readable, name ``codec`` (and ``params`` when given) and record the
+    payload's SHA-256, which the payload's bytes must match before they are decoded (by
+    ``np.load(allow_pickle=False)`` or ``json``: reading never runs code). A manifest naming
+    another plain codec raises :class:`CodecConflict` instead: recomputing would overwrite the
+    entry of the code that wrote it (change a kind's codec together with its code version).
+    """
+    entry = Path(entry)
+    spec = payloads.codec(codec)
+    try:
+        manifest = json.loads((entry / "manifest.json").read_text())
+    except FileNotFoundError:
+        raise LookupError("no manifest") from None
+    except (OSError, ValueError) as err:
+        raise LookupError(f"unreadable manifest ({type(err).__name__})") from None
+    if not isinstance(manifest, dict):
+        raise LookupError("unreadable manifest (not a JSON object)")
+    stored = manifest.get("codec")
+    if stored != codec and stored in payloads.CODECS:
+        raise CodecConflict(f"cache entry {entry.parent.name}/{entry.name} is stored as "
+                            f"{stored!r} but looked up as {codec!r}: the call sites of this kind "
+                            "disagree (a kind's codec changes with its CODE_VERSIONS entry)")
+    if stored != codec:
+        hint = (" (a pickle: run `python -m ibt.runs.cache_admin migrate-plain --trust-pickles`)"
+                if stored == "joblib" else "")
+        raise LookupError(f"stored as {stored!r}, read as {codec!r}{hint}")
+    if params is not None and canonical(manifest.get("params")) != canonical(params):
+        raise LookupError("its manifest names other parameters")
+    digest = manifest.get("payload_sha256")
+    if not isinstance(digest, str):
+        raise LookupError("its manifest records no payload digest")
+    try:
+        data = (entry / f"payload.{spec.suffix}").read_bytes()
+    except OSError as err:
+        raise LookupError(f"unreadable payload ({type(err).__name__})") from None
+    if payload_digest(data) != digest:
+        raise LookupError("the payload does not match its manifest's SHA-256")
+    try:
+        return spec.loads(data)
+    except Exception as err:  # a verified payload that does not decode: another schema version
+        raise LookupError(f"undecodable payload ({type(err).__name__}: {err})") from None
 
 
 def load_or_compute(kind: str, params: dict[str, Any], compute: Callable[[], Any], *,
-                    cache_dir: str | Path, codec: str = "joblib", refresh: bool = False) -> Any:
+                    cache_dir: str | Path, codec: str = "json", refresh: bool = False) -> Any:
     """Return the cached value for ``(kind, params)`` or compute, store and return it.
 
-    ``refresh=True`` recomputes and overwrites (what ``make reproduce`` does).
+    ``codec`` names the payload's format (:data:`ibt.runs.payloads.CODECS`). An entry whose
+    manifest exists but that does not verify (see :func:`read_entry`) is a miss, recomputed and
+    overwritten, with one :class:`CacheWarning` naming ``kind/key``; a cache folder that cannot
+    be written returns the computed value with one warning. ``refresh=True`` recomputes and
+    overwrites (what ``make reproduce`` does).
     """
-    if codec not in CODECS:
-        raise ValueError(f"unknown codec {codec!r}; expected one of {CODECS}")
+    spec = payloads.codec(codec)
     key = cache_key(kind, params)
     entry = Path(cache_dir) / kind / key
-    payload = entry / f"payload.{codec}"
-    manifest = entry / "manifest.json"
     _log_read(kind, key)
-    if manifest.exists() and payload.exists() and not refresh:
-        return _load(payload, codec)
+    if not refresh and (entry / "manifest.json").exists():
+        try:
+            return read_entry(entry, codec, params)
+        except LookupError as miss:
+            warnings.warn(f"cache entry {kind}/{key}: {miss}; recomputing it", CacheWarning,
+                          stacklevel=2)
     start = time.perf_counter()
     value = compute()
     wall = time.perf_counter() - start
-    _save(payload, value, codec)
-    _save(manifest, entry_manifest(kind, params, codec, wall_seconds=round(wall, 2)), "json")
+    data = spec.dumps(value)
+    manifest = entry_manifest(kind, params, codec, wall_seconds=round(wall, 2),
+                              payload_sha256=payload_digest(data))
+    created = not entry.exists()
+    try:
+        write_entry(entry, spec.suffix, data, manifest)
+    except OSError as err:
+        if created:  # leave no empty folder behind
+            with contextlib.suppress(OSError):
+                entry.rmdir()
+        warnings.warn(f"cache entry {kind}/{key} not stored ({type(err).__name__}: {err}); "
+                      "returning the computed value", CacheWarning, stacklevel=2)
     return value
+
+
+def write_entry(entry: Path, suffix: str, data: bytes, manifest: dict[str, Any]) -> None:
+    """Write ``payload.<suffix>``, then ``manifest.json`` (each atomically), then remove any
+    other ``payload.*``: a manifest on disk always describes the payload beside it, or its
+    digest tells that it does not."""
+    atomic_write_bytes(entry / f"payload.{suffix}", data)
+    atomic_write_text(entry / "manifest.json", manifest_text(manifest))
+    for other in entry.glob("payload.*"):
+        if other.name != f"payload.{suffix}":
+            other.unlink()
 
 
 def entry_manifest(kind: str, params: dict[str, Any], codec: str, **facts: Any
@@ -170,10 +253,15 @@ def entry_manifest(kind: str, params: dict[str, Any], codec: str, **facts: Any
 
 
 def is_cached(kind: str, params: dict[str, Any], *, cache_dir: str | Path) -> bool:
-    """Whether ``load_or_compute`` would be a hit (with the current versions)."""
+    """Whether the entry of ``(kind, params)`` exists with a manifest recording a payload digest
+    (a hit for ``load_or_compute`` unless its payload was damaged since: not read here)."""
     key = cache_key(kind, params)
     _log_read(kind, key)
-    return (Path(cache_dir) / kind / key / "manifest.json").exists()
+    try:
+        manifest = json.loads((Path(cache_dir) / kind / key / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(manifest, dict) and isinstance(manifest.get("payload_sha256"), str)
 
 
 def _log_read(kind: str, key: str) -> None:

@@ -13,7 +13,7 @@ is verified), so a tree's final evaluation is its BT's.
    leaf budget) are ranked by their held-out selection score (on LunarLander the linear
    schedule of Imitation-BT loses to faster hand-overs, see notebook 02, so the paper's own
    setting is not always the best start);
-2. refine the best :data:`REFINE_SOURCES` of them by return (:func:`ibt.refine.by_return.refine`:
+2. refine the best ``Task.refine_sources`` of them by return (:func:`ibt.refine.by_return.refine`:
    thresholds by CMA-ES, leaf actions, pruning to a leaf limit), on refinement episodes
    disjoint from selection and final ones, and keep the one that scores best on the
    refinement's held-out selection episodes;
@@ -35,20 +35,19 @@ import pandas as pd
 from tqdm import tqdm
 
 from ibt.bt.model import BehaviorTree
-from ibt.profiles import Config
-from ibt.distill.loop import Distillation, task_budget
+from ibt.distill.loop import Distillation
 from ibt.evaluate.rollouts import retention_norm, retention_raw
-from ibt.refine.by_return import REFINE_SOURCES, RefineConfig, Refinement, refine
+from ibt.profiles import Config
+from ibt.refine.by_return import RefineConfig, Refinement, refine
 from ibt.runs.cache import load_or_compute
 from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.runs.pipeline import distill_cached
-from ibt.tasks.catalogue import Task, get_task
+from ibt.synth.registry import front_synthesisers, get_synthesiser
+from ibt.tasks.catalogue import TASKS, get_task
+from ibt.tasks.task import Task
 
 PLUS = "imitation-bt+"
 SOURCE_METHODS = ("bc", "dagger", "viper", "imitation-bt")
-SYNTHESISERS = ("imitation-bt", "decision-list")
-FRONT_TASKS = ("CartPole-v1", "Acrobot-v1", "MountainCar-v0", "LunarLander-v3",
-               "highway-fast-v0", "PackageDelivery-v0")
 
 @dataclass(frozen=True)
 class Anchor:
@@ -73,12 +72,11 @@ ANCHORS = (
 
 
 def refine_config(cfg: Config, task: str | Task, **overrides: Any) -> RefineConfig:
-    """The task's refinement budget (:func:`ibt.refine.by_return.task_config`), shrunk to seconds
-    under
-    the ``smoke`` profile."""
+    """The task's refinement budget (:func:`ibt.refine.by_return.task_config`), shrunk to
+    seconds under the ``smoke`` profile."""
     from ibt.refine.by_return import task_config
 
-    config = task_config(get_task(task).name, **overrides)
+    config = task_config(get_task(task), **overrides)
     if cfg.profile == "smoke":
         config = replace(config, episodes=min(config.episodes, 240), cma_generations=2,
                          cma_episodes=2, cma_popsize=4, sweep_episodes=2, sweep_rounds=1,
@@ -86,15 +84,16 @@ def refine_config(cfg: Config, task: str | Task, **overrides: Any) -> RefineConf
     return config
 
 
-def source_run(cfg: Config, task: str, algo: str, method: str, seed: int,
+def source_run(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                leaves: int | None) -> Distillation:
     """A cached distillation at a leaf limit (``None``: the task's budget, i.e. the grid run)."""
-    overrides = {} if leaves is None or leaves == task_budget(task).max_leaf_nodes else {
+    task = get_task(task)
+    overrides = {} if leaves is None or leaves == task.budget.max_leaf_nodes else {
         "max_leaf_nodes": leaves}
     return distill_cached(cfg, task, algo, method, seed, **overrides)
 
 
-def ranked_sources(cfg: Config, task: str, algo: str, seed: int
+def ranked_sources(cfg: Config, task: str | Task, algo: str, seed: int
                    ) -> list[tuple[str, Distillation]]:
     """The four paper methods' grid runs (the task's leaf budget, this seed), best first by
     the held-out selection score of their chosen tree (all four use the same selection
@@ -104,7 +103,7 @@ def ranked_sources(cfg: Config, task: str, algo: str, seed: int
     return sorted(runs, key=lambda mr: -mr[1].iterations[mr[1].best_index]["selection_mean"])
 
 
-def refine_cached(cfg: Config, task: str, algo: str, seed: int, source_method: str, *,
+def refine_cached(cfg: Config, task: str | Task, algo: str, seed: int, source_method: str, *,
                   max_leaves: int | None, config: RefineConfig | None = None) -> Refinement:
     """Refine one source run's tree, pruned to ``max_leaves`` (cached on tree and settings).
 
@@ -112,7 +111,7 @@ def refine_cached(cfg: Config, task: str, algo: str, seed: int, source_method: s
     """
     spec = get_task(task)
     config = config or refine_config(cfg, spec, max_leaves=max_leaves)
-    tree = source_run(cfg, spec.name, algo, source_method, seed, None).best_tree
+    tree = source_run(cfg, spec, algo, source_method, seed, None).best_tree
     params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": source_method,
               "tree": tree_digest(tree), "config": config.as_params()}
 
@@ -120,7 +119,7 @@ def refine_cached(cfg: Config, task: str, algo: str, seed: int, source_method: s
         return refine(tree, spec, config, seed, progress=cfg.progress)
 
     return load_or_compute("refine", params, compute, cache_dir=cfg.cache_dir,
-                           refresh=cfg.refresh)
+                           codec="refinement", refresh=cfg.refresh)
 
 
 @dataclass(frozen=True)
@@ -139,14 +138,15 @@ class PlusResult:
         return self.refinement.best_tree
 
 
-def plus_run(cfg: Config, task: str, algo: str, seed: int, max_leaves: int | None
+def plus_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int | None
              ) -> PlusResult:
-    """Imitation-BT+: refine the ``REFINE_SOURCES[task]`` best source trees (by their held-out
-    selection score) and keep the refined tree that scores best on the refinement's held-out
-    selection episodes (the same episodes for every source)."""
+    """Imitation-BT+: refine the task's ``refine_sources`` best source trees (by their
+    held-out selection score) and keep the refined tree that scores best on the refinement's
+    held-out selection episodes (the same episodes for every source)."""
+    task = get_task(task)
     ranked = ranked_sources(cfg, task, algo, seed)
     refined = [(m, refine_cached(cfg, task, algo, seed, m, max_leaves=max_leaves))
-               for m, _ in ranked[:REFINE_SOURCES.get(get_task(task).name, 1)]]
+               for m, _ in ranked[:task.refine_sources]]
     method, chosen = max(refined, key=lambda mr: mr[1].selection_means[mr[1].best_index])
     return PlusResult(method, chosen, sum(run.wall_seconds for _, run in ranked),
                       sum(r.cpu_seconds for _, r in refined),
@@ -154,22 +154,16 @@ def plus_run(cfg: Config, task: str, algo: str, seed: int, max_leaves: int | Non
 
 
 def synthesise(tree: Any, task: Task, method: str) -> BehaviorTree:
-    """One verified BT of ``tree`` (raises if it disagrees with the tree)."""
-    if method == "imitation-bt":
-        from ibt.synth.imitation import imitation_bt
-
-        return imitation_bt(tree, task).bt
-    if method == "decision-list":
-        from ibt.synth.decision_list import decision_list_bt
-
-        return decision_list_bt(tree, task).bt
-    raise ValueError(f"unknown synthesiser {method!r}; expected one of {SYNTHESISERS}")
+    """One verified BT of ``tree`` (every synthesiser verifies; raises if it disagrees)."""
+    return get_synthesiser(method)(tree, task).bt
 
 
-def bt_sizes(cfg: Config, task: str, tree: Any) -> dict[str, Any]:
-    """Every synthesiser's verified BT of ``tree``, their sizes, and the smallest (cached)."""
+def bt_sizes(cfg: Config, task: str | Task, tree: Any) -> dict[str, Any]:
+    """Every front synthesiser's verified BT of ``tree`` (the registry's ``on_front``), their
+    sizes, and the smallest (cached)."""
     spec = get_task(task)
-    params = {"task": spec.name, "tree": tree_digest(tree), "synthesisers": list(SYNTHESISERS)}
+    synthesisers = front_synthesisers()
+    params = {"task": spec.name, "tree": tree_digest(tree), "synthesisers": list(synthesisers)}
 
     def compute() -> dict[str, Any]:
         t = tree.tree_
@@ -177,7 +171,7 @@ def bt_sizes(cfg: Config, task: str, tree: Any) -> dict[str, Any]:
                                "tree_leaves": int(tree.get_n_leaves()),
                                "tree_splits": int(t.node_count - tree.get_n_leaves())}
         bts = {}
-        for method in SYNTHESISERS:
+        for method in synthesisers:
             start = time.perf_counter()
             bt = synthesise(tree, spec, method)
             key = method.replace("-", "_")
@@ -185,7 +179,7 @@ def bt_sizes(cfg: Config, task: str, tree: Any) -> dict[str, Any]:
             out[f"conditions_{key}"] = bt.node_types()["condition"]
             out[f"seconds_{key}"] = round(time.perf_counter() - start, 3)
             bts[method] = bt
-        smallest = min(SYNTHESISERS, key=lambda m: (bts[m].node_count, SYNTHESISERS.index(m)))
+        smallest = min(synthesisers, key=lambda m: (bts[m].node_count, synthesisers.index(m)))
         out.update({"bt_method": smallest, "bt_nodes": bts[smallest].node_count,
                     "bt_conditions": bts[smallest].node_types()["condition"],
                     "bt": bts[smallest].to_dict()})
@@ -218,16 +212,16 @@ def point_row(cfg: Config, point: Point) -> dict[str, Any]:
     """One row of ``data/results/front.csv`` (every heavy step cached)."""
     spec = get_task(point.task)
     if point.method == PLUS:
-        result = plus_run(cfg, spec.name, point.algo, point.seed, point.leaves)
+        result = plus_run(cfg, spec, point.algo, point.seed, point.leaves)
         source_method, distill_seconds, tree = (result.source_method, result.distill_seconds,
                                                 result.tree)
     else:
         source_method = point.method
-        run = source_run(cfg, spec.name, point.algo, point.method, point.seed, point.leaves)
+        run = source_run(cfg, spec, point.algo, point.method, point.seed, point.leaves)
         distill_seconds, tree = run.wall_seconds, run.best_tree
     row: dict[str, Any] = {"task": spec.name, "expert": point.algo, "method": point.method,
                            "seed": point.seed,
-                           "max_leaf_nodes": point.leaves or task_budget(spec).max_leaf_nodes,
+                           "max_leaf_nodes": point.leaves or spec.budget.max_leaf_nodes,
                            "source_method": source_method,
                            "distill_seconds": round(distill_seconds, 2),
                            "refine_episodes": 0, "refine_steps": 0, "refine_seconds": 0.0}
@@ -238,9 +232,9 @@ def point_row(cfg: Config, point: Point) -> dict[str, Any]:
                     "refine_seconds": round(result.refine_seconds, 2),
                     "refine_stage": (["source"] + [s["stage"] for s in record.stages])[
                         record.best_index]})
-    sizes = bt_sizes(cfg, spec.name, tree)
-    evaluation = evaluate_tree(cfg, spec.name, tree)
-    expert = expert_evaluation(cfg, spec.name, point.algo)["mean_return"]
+    sizes = bt_sizes(cfg, spec, tree)
+    evaluation = evaluate_tree(cfg, spec, tree)
+    expert = expert_evaluation(cfg, spec, point.algo)["mean_return"]
     random_return = spec.random_return()
     row.update({k: v for k, v in sizes.items() if k != "bt"})
     row.update({"mean_return": evaluation["mean_return"], "std_return": evaluation["std_return"],
@@ -328,8 +322,9 @@ def sweep_points(tasks: list[str], algo: str, methods: list[str],
     """The paper methods at each task's leaf limits (the task's budget added: the grid run)."""
     points = []
     for task in tasks:
-        limits = sorted({*leaves.get(task, []), task_budget(task).max_leaf_nodes or 0} - {0})
-        points += [Point(task, algo, m, s, None if L == task_budget(task).max_leaf_nodes else L)
+        budget = get_task(task).budget.max_leaf_nodes
+        limits = sorted({*leaves.get(task, []), budget or 0} - {0})
+        points += [Point(task, algo, m, s, None if L == budget else L)
                    for m in methods for L in limits for s in seeds]
     return points
 
@@ -359,29 +354,11 @@ def without_pending(points: list[Point], pending: list[list[Any]]) -> list[Point
     return [p for p in points if not listed(p)]
 
 
-@dataclass(frozen=True)
-class Target:
-    """A done-when bar of Imitation-BT+ (issue 15): retention at most this many BT nodes."""
-
-    task: str
-    experts: tuple[str, ...]
-    min_retention: float | None  # mean random-normalised retention over seeds, %
-    max_bt_nodes: int | None  # mean nodes of the committed (smallest verified) BT
-    # (both None: no bar, the task is reported as measured)
-
-    def describe(self) -> str:
-        if self.min_retention is None or self.max_bt_nodes is None:
-            return "reported as measured"
-        return f">= {self.min_retention:g} % with <= {self.max_bt_nodes} nodes"
-
-
-TARGETS = (
-    Target("LunarLander-v3", ("dqn", "ppo"), 90.0, 100),
-    Target("MountainCar-v0", ("dqn",), 98.0, 9),
-    Target("CartPole-v1", ("dqn", "ppo", "a2c"), 99.0, 10),
-    Target("Acrobot-v1", ("dqn", "ppo", "a2c"), 98.0, 15),
-    Target("highway-fast-v0", ("dqn",), None, None),
-)
+def targets() -> list[Task]:
+    """The registered tasks with an Imitation-BT+ target (``Task.front_target``), in the
+    targets table's order."""
+    with_target = [t for t in TASKS.values() if t.front_target is not None]
+    return sorted(with_target, key=lambda t: t.front_target.rank)  # type: ignore[union-attr]
 
 
 def target_table(table: pd.DataFrame, headline: dict[str, int | None]) -> pd.DataFrame:
@@ -389,12 +366,14 @@ def target_table(table: pd.DataFrame, headline: dict[str, int | None]) -> pd.Dat
     of any leaf limit that meets the node bar (mean over seeds)."""
     plus = table[table["method"] == PLUS]
     rows = []
-    for target in TARGETS:
+    for task in targets():
+        target = task.front_target
+        assert target is not None
         for algo in target.experts:
-            runs = plus[(plus["task"] == target.task) & (plus["expert"] == algo)]
-            limit = headline.get(target.task) or task_budget(target.task).max_leaf_nodes
+            runs = plus[(plus["task"] == task.name) & (plus["expert"] == algo)]
+            limit = headline.get(task.name) or task.budget.max_leaf_nodes
             at = runs[runs["max_leaf_nodes"] == limit]
-            row: dict[str, Any] = {"task": target.task, "expert": algo,
+            row: dict[str, Any] = {"task": task.name, "expert": algo,
                                    "target": target.describe(),
                                    "leaf_limit": limit, "seeds": len(at)}
             if at.empty:

@@ -21,7 +21,6 @@ import pandas as pd
 from joblib import Parallel, delayed, parallel_config
 from tqdm import tqdm
 
-from ibt.profiles import Config
 from ibt.distill.loop import METHODS, tree_signature
 from ibt.distill.schedules import Schedule
 from ibt.evaluate.policies import TreePolicy
@@ -35,17 +34,23 @@ from ibt.evaluate.rollouts import (
 from ibt.experts.expert import expert_path, load_expert
 from ibt.experts.training import expert_statuses
 from ibt.files import file_digest
+from ibt.profiles import Config
 from ibt.report.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
 from ibt.runs.cache import load_or_compute
 from ibt.runs.pipeline import distill_cached
+from ibt.synth.registry import SYNTHESISERS, get_synthesiser
 from ibt.tasks.catalogue import get_task
+from ibt.tasks.task import Task
 
 
 @dataclass(frozen=True)
 class Cell:
-    """One distillation run of the grid; ``overrides`` go to the distillation config."""
+    """One distillation run of the grid; ``overrides`` go to the distillation config.
 
-    task: str
+    The cell carries its :class:`Task` whole (resolved when the grid is made), so a task
+    registered at run time works in worker processes too."""
+
+    task: Task
     algo: str
     method: str
     seed: int
@@ -53,28 +58,27 @@ class Cell:
 
     def label(self) -> str:
         extra = ",".join(f"{k}={v}" for k, v in self.overrides)
-        return f"{self.task}/{self.algo}/{self.method}/s{self.seed}" + (f"[{extra}]" if extra
+        return f"{self.task.name}/{self.algo}/{self.method}/s{self.seed}" + (f"[{extra}]" if extra
                                                                           else "")
 
 
-def grid(tasks: Iterable[str], algos: Iterable[str], methods: Iterable[str] = tuple(METHODS),
+def grid(tasks: Iterable[str | Task], algos: Iterable[str], methods: Iterable[str] = tuple(METHODS),
          seeds: Iterable[int] = (0, 1, 2), **overrides: Any) -> list[Cell]:
     """The full cross product as cells (every task x algo x method x seed)."""
     extra = tuple(sorted(overrides.items()))
-    return [Cell(get_task(t).name, a, m, s, extra) for t in tasks for a in algos
+    resolved = [get_task(t) for t in tasks]  # the boundary: names become tasks once, here
+    return [Cell(t, a, m, s, extra) for t in resolved for a in algos
             for m in methods for s in seeds]
 
 
-#: Seeds per cell of the paper grid: 5 (a 95 % bootstrap CI needs them, see ibt.report.stats), but
-#: 3 on
-#: highway, where one run costs 3 to 23 minutes here (``wall_seconds`` in distillation.csv)
+#: Seeds per cell of the paper grid: 5 (a 95 % bootstrap CI needs them, see ibt.report.stats),
+#: fewer where a task's catalogue entry says so (``Task.paper_seeds``: 3 on highway)
 PAPER_SEEDS = 5
-TASK_SEEDS: dict[str, int] = {"highway-fast-v0": 3}
 
 
 def seed_budget(cells: Iterable[Cell]) -> list[Cell]:
-    """The cells within their task's seed count (:data:`TASK_SEEDS`, else all asked for)."""
-    return [c for c in cells if c.seed < TASK_SEEDS.get(c.task, c.seed + 1)]
+    """The cells within their task's seed count (``Task.paper_seeds``)."""
+    return [c for c in cells if c.seed < c.task.paper_seeds]
 
 
 def uncached(cfg: Config, cells: Iterable[Cell]) -> list[Cell]:
@@ -86,9 +90,10 @@ def uncached(cfg: Config, cells: Iterable[Cell]) -> list[Cell]:
         cfg, c.task, c.algo, c.method, c.seed, **dict(c.overrides)), cache_dir=cfg.cache_dir)]
 
 
-def expert_evaluation(cfg: Config, task: str, algo: str) -> dict[str, float]:
+def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, float]:
     """The expert's return on the profile's final-evaluation episodes (cached)."""
-    params = {"task": task, "algo": algo, "episodes": cfg.final_episodes,
+    task = get_task(task)
+    params = {"task": task.name, "algo": algo, "episodes": cfg.final_episodes,
               "expert_sha256": file_digest(expert_path(task, algo))}
 
     def compute() -> dict[str, float]:
@@ -119,12 +124,12 @@ def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
     return {"mean_return": result.mean, "std_return": result.std, **episode_metrics(spec, result)}
 
 
-def evaluate_tree(cfg: Config, task: str, tree: Any) -> dict[str, float]:
+def evaluate_tree(cfg: Config, task: str | Task, tree: Any) -> dict[str, float]:
     """A decision tree's final evaluation (cached on the tree's exact structure)."""
-    params = {"task": task, "episodes": cfg.final_episodes, "tree": tree_digest(tree)}
+    spec = get_task(task)
+    params = {"task": spec.name, "episodes": cfg.final_episodes, "tree": tree_digest(tree)}
 
     def compute() -> dict[str, float]:
-        spec = get_task(task)
         return _final_metrics(cfg, spec, TreePolicy(spec, tree).act)
 
     return load_or_compute("tree-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
@@ -138,9 +143,10 @@ def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
     tree = run.best_tree
     evaluation = evaluate_tree(cfg, cell.task, tree)
     expert = expert_evaluation(cfg, cell.task, cell.algo)
-    random_return = get_task(cell.task).random_return()
+    random_return = cell.task.random_return()
     schedule = Schedule(**run.config["schedule"])
-    row = {"task": cell.task, "expert": cell.algo, "method": cell.method, "seed": cell.seed,
+    row = {"task": cell.task.name, "expert": cell.algo, "method": cell.method,
+           "seed": cell.seed,
            "schedule": schedule.label,
            **{k: v for k, v in cell.overrides if k != "schedule"},
            "mean_return": evaluation["mean_return"], "std_return": evaluation["std_return"],
@@ -152,7 +158,7 @@ def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
            "best_iteration": run.best_index, "expert_labels": run.expert_labels,
            # the distillation's own recorded time: stable across cache hits, unlike this call's
            "wall_seconds": round(run.wall_seconds, 2),
-           "expert_status": expert_statuses().get((cell.task, cell.algo), "ok")}
+           "expert_status": expert_statuses().get((cell.task.name, cell.algo), "ok")}
     row.update({k: v for k, v in evaluation.items() if k.endswith("_rate")})
     return row
 
@@ -219,6 +225,7 @@ def write_results(cfg: Config, frame: pd.DataFrame, name: str, **facts: Any) -> 
 
 
 def seed_best(results: pd.DataFrame, task: str, algo: str, method: str) -> int:
+    """``task``: the task's name, as in the results table."""
     """The seed whose run scored best on the final episodes (fewer nodes break ties)."""
     rows = results[(results.task == task) & (results.expert == algo) & (results.method == method)]
     if rows.empty:
@@ -227,27 +234,15 @@ def seed_best(results: pd.DataFrame, task: str, algo: str, method: str) -> int:
     return int(best.iloc[0]["seed"])
 
 
-BT_METHODS = ("imitation-bt", "bt-espresso", "re-bt-espresso", "decision-list")
+def bt_methods() -> tuple[str, ...]:
+    """The BT synthesisers of the grid: every registered one, in registry order."""
+    return tuple(SYNTHESISERS)
 
 
-def _synthesize(tree: Any, spec: Any, method: str) -> Any:
-    from ibt.synth.baselines import bt_espresso, re_bt_espresso
-    from ibt.synth.imitation import imitation_bt
-
-    if method == "imitation-bt":
-        return imitation_bt(tree, spec)  # the paper's default strategy, max_complexity
-    if method == "bt-espresso":
-        return bt_espresso(tree, spec)
-    if method == "re-bt-espresso":
-        return re_bt_espresso(tree, spec)
-    if method == "decision-list":  # beyond the paper: ibt.synth.decision_list
-        from ibt.synth.decision_list import decision_list_bt
-
-        return decision_list_bt(tree, spec)
-    raise ValueError(f"unknown BT method {method!r}; choose from {', '.join(BT_METHODS)}")
+BT_METHODS = bt_methods()  # the built-in four (imitation-bt, the two baselines, decision-list)
 
 
-def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
+def synthesize_run(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                    source_method: str, **overrides: Any) -> dict[str, Any]:
     """One BT from the best tree of one distillation run, verified against it (cached).
 
@@ -257,17 +252,16 @@ def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
     from ibt.synth.imitation import DEFAULT_STRATEGIES, imitation_bt, verify
 
     spec = get_task(task)
-    tree = distill_cached(cfg, spec.name, algo, source_method, seed, **overrides).best_tree
+    synthesiser = get_synthesiser(method)
+    tree = distill_cached(cfg, spec, algo, source_method, seed, **overrides).best_tree
     params = {"task": spec.name, "algo": algo, "method": method, "seed": seed,
               "source_method": source_method, "tree": tree_digest(tree)}
-    if method == "decision-list":  # its own version: a changed search re-keys only its BTs
-        from ibt.synth.decision_list import VERSION
-
-        params["method_version"] = VERSION
+    if synthesiser.version is not None:  # its own version: a changed method re-keys its BTs
+        params["method_version"] = synthesiser.version_number()
 
     def compute() -> dict[str, Any]:
         started = time.process_time()
-        result = _synthesize(tree, spec, method)
+        result = synthesiser(tree, spec)
         seconds = time.process_time() - started
         checked = verify(result.bt, tree, spec)
         types = result.bt.node_types()
@@ -293,35 +287,36 @@ def synthesize_run(cfg: Config, task: str, algo: str, method: str, seed: int,
         return {"row": row, "bt": result.bt}
 
     return load_or_compute("synthesis", params, compute, cache_dir=cfg.cache_dir,
-                           refresh=cfg.refresh)
+                           codec="synthesis", refresh=cfg.refresh)
 
 
-def evaluate_bt(cfg: Config, task: str, bt: Any) -> dict[str, float]:
+def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
     """A BT's final evaluation, rolled out in the environment (cached on its JSON)."""
     from ibt.evaluate.policies import BTPolicy
 
-    params = {"task": task, "episodes": cfg.final_episodes, "bt": _bt_digest(bt)}
+    spec = get_task(task)
+    params = {"task": spec.name, "episodes": cfg.final_episodes, "bt": _bt_digest(bt)}
 
     def compute() -> dict[str, float]:
-        spec = get_task(task)
         return _final_metrics(cfg, spec, BTPolicy(spec, bt).act)
 
     return load_or_compute("bt-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
                            refresh=cfg.refresh)
 
 
-def executors_agree(cfg: Config, task: str, bt: Any, tree: Any, n_states: int = 100_000
+def executors_agree(cfg: Config, task: str | Task, bt: Any, tree: Any, n_states: int = 100_000
                     ) -> dict[str, Any]:
     """Do py_trees, the NumPy and compiled-Python executors and the sklearn tree decide alike
     on ``n_states`` random states of the task's box? (cached: py_trees ticks ~10^4 states/s)."""
     from ibt.evaluate import speed
 
-    params = {"task": task, "n_states": n_states, "tree": tree_digest(tree),
+    spec = get_task(task)
+    params = {"task": spec.name, "n_states": n_states, "tree": tree_digest(tree),
               "bt": _bt_digest(bt)}
 
     def compute() -> dict[str, Any]:
-        states = get_task(task).sample_features(n_states, np.random.default_rng(0))
-        return {"task": task, "states": n_states, "bt_nodes": bt.node_count,
+        states = spec.sample_features(n_states, np.random.default_rng(0))
+        return {"task": spec.name, "states": n_states, "bt_nodes": bt.node_count,
                 "agree": speed.executors_agree(bt, tree, states)}
 
     return load_or_compute("executors", params, compute, cache_dir=cfg.cache_dir, codec="json",
@@ -342,16 +337,16 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
     """
     from ibt.runs.pipeline import save_tree
 
-    sources = {"imitation-bt": "imitation-bt", "bt-espresso": baseline_source,
-               "re-bt-espresso": baseline_source, "decision-list": "imitation-bt"}
+    sources = {name: baseline_source if s.source == "baseline" else s.source
+               for name, s in SYNTHESISERS.items()}
     pairs = list(results[["task", "expert"]].drop_duplicates().itertuples(index=False))
     statuses = expert_statuses()
     rows = []
     for task, algo in tqdm(pairs, desc="synthesis", disable=not cfg.progress):
         spec = get_task(task)
-        expert_return = expert_evaluation(cfg, task, algo)["mean_return"]
+        expert_return = expert_evaluation(cfg, spec, algo)["mean_return"]
         random_return = spec.random_return()
-        for method in BT_METHODS:
+        for method in bt_methods():
             source = sources[method]
             runs = results[(results.task == task) & (results.expert == algo)
                            & (results.method == source)]
@@ -359,18 +354,18 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
                 continue
             best_seed = seed_best(results, task, algo, source)
             for source_row in runs.itertuples(index=False):
-                made = synthesize_run(cfg, task, algo, method, int(source_row.seed), source)
+                made = synthesize_run(cfg, spec, algo, method, int(source_row.seed), source)
                 row = {**made["row"], "seed_best": int(source_row.seed) == best_seed}
                 row["tree_splits"] = (int(row["tree_nodes"]) - 1) // 2  # binary: 2 s + 1 nodes
                 perf = {"mean_return": source_row.mean_return,
                         "std_return": source_row.std_return}
                 row["evaluated"] = "source tree (verified equivalent)"
                 if row["seed_best"]:
-                    perf = evaluate_bt(cfg, task, made["bt"])
+                    perf = evaluate_bt(cfg, spec, made["bt"])
                     row["evaluated"] = "BT rollout"
                     row["matches_tree"] = bool(
                         np.isclose(perf["mean_return"], source_row.mean_return))
-                    save_tree(cfg, made["bt"], task, algo, method)
+                    save_tree(cfg, made["bt"], spec, algo, method)
                 row.update({k: v for k, v in perf.items() if k.endswith("_rate")
                             or k in ("delivered",)})
                 row.update({"mean_return": perf["mean_return"], "std_return": perf["std_return"],

@@ -13,8 +13,7 @@ from typing import Any
 import pandas as pd
 
 from ibt.bt.model import BehaviorTree
-from ibt.profiles import Config
-from ibt.distill.loop import Distillation, DistillConfig, distill, task_budget
+from ibt.distill.loop import Distillation, DistillConfig, distill
 from ibt.evaluate.rollouts import (
     episode_metrics,
     final_seeds,
@@ -25,14 +24,18 @@ from ibt.evaluate.rollouts import (
 from ibt.experts.expert import expert_path, load_expert
 from ibt.export.drawing import save_json
 from ibt.files import file_digest
+from ibt.profiles import Config
 from ibt.runs.cache import load_or_compute
 from ibt.tasks.catalogue import get_task
+from ibt.tasks.task import Task
 
 
-def distill_config(cfg: Config, task: str, method: str = "imitation-bt", **overrides: Any
-                   ) -> DistillConfig:
-    """The task's distillation settings (``TASK_BUDGETS``) scaled to the profile's budgets."""
-    budget = task_budget(task)
+def distill_config(cfg: Config, task: str | Task, method: str = "imitation-bt",
+                   **overrides: Any) -> DistillConfig:
+    """The task's distillation settings (its catalogue entry's ``budget``) scaled to the
+    profile's budgets."""
+    task = get_task(task)
+    budget = task.budget
     labels = max(50, round(budget.labels_per_iteration * cfg.labels_scale))
     iterations = min(cfg.n_iterations, budget.max_iterations or cfg.n_iterations)
     settings = {"n_iterations": iterations, "labels_per_iteration": labels,
@@ -40,30 +43,30 @@ def distill_config(cfg: Config, task: str, method: str = "imitation-bt", **overr
     return DistillConfig.for_task(task, method=method, **settings)
 
 
-def distill_params(cfg: Config, task: str, algo: str, method: str = "imitation-bt",
+def distill_params(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> dict[str, Any]:
     """The cache parameters of one distillation run (see :func:`distill_cached`)."""
     task_obj = get_task(task)
-    dcfg = distill_config(cfg, task_obj.name, method, **overrides)
+    dcfg = distill_config(cfg, task_obj, method, **overrides)
     return {"task": task_obj.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
             "expert_sha256": file_digest(expert_path(task_obj, algo))}
 
 
-def distill_cached(cfg: Config, task: str, algo: str, method: str = "imitation-bt",
+def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> Distillation:
     """A distillation run, from the cache when the same expert, settings and seed ran before.
 
     The cache key holds the expert checkpoint's digest: a retrained expert is a cache miss.
     """
     task_obj = get_task(task)
-    dcfg = distill_config(cfg, task_obj.name, method, **overrides)
-    params = distill_params(cfg, task_obj.name, algo, method, seed, **overrides)
+    dcfg = distill_config(cfg, task_obj, method, **overrides)
+    params = distill_params(cfg, task_obj, algo, method, seed, **overrides)
 
     def compute() -> Distillation:
         return distill(task_obj, load_expert(task_obj, algo), dcfg, seed, progress=cfg.progress)
 
     return load_or_compute("distill", params, compute, cache_dir=cfg.cache_dir,
-                           refresh=cfg.refresh)
+                           codec="distillation", refresh=cfg.refresh)
 
 
 def iterations_frame(run: Distillation) -> pd.DataFrame:
@@ -73,16 +76,17 @@ def iterations_frame(run: Distillation) -> pd.DataFrame:
     return frame
 
 
-def tree_path(cfg: Config, task: str, algo: str, method: str) -> Path:
+def tree_path(cfg: Config, task: str | Task, algo: str, method: str) -> Path:
     return cfg.data_dir / "trees" / get_task(task).name / algo / f"{method}.json"
 
 
-def save_tree(cfg: Config, bt: BehaviorTree, task: str, algo: str, method: str) -> Path:
+def save_tree(cfg: Config, bt: BehaviorTree, task: str | Task, algo: str, method: str) -> Path:
     """Write ``data/trees/<task>/<algo>/<method>.json`` (under the profile's data dir)."""
     return save_json(bt, tree_path(cfg, task, algo, method))
 
 
-def compare_policies(cfg: Config, task: str, policies: dict[str, Any], reference: str = "expert",
+def compare_policies(cfg: Config, task: str | Task, policies: dict[str, Any],
+                     reference: str = "expert",
                      random_return: float | None = None) -> pd.DataFrame:
     """Return statistics of each policy over the profile's final-evaluation episodes.
 

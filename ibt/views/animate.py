@@ -29,7 +29,8 @@ import pandas as pd
 from ibt.bt.model import BehaviorTree, Condition, TraceStep, tick
 from ibt.export.drawing import deciding_condition, load_json, measure_graph, to_graphviz
 from ibt.paths import DATA_DIR, FIGURES_DIR
-from ibt.tasks.catalogue import Task, get_task, sdl_video_driver
+from ibt.tasks.catalogue import TASKS
+from ibt.tasks.task import Task, sdl_video_driver
 
 WIDTH = 840  #: GIF width in px (about the README's text column)
 BODY_HEIGHT = 360  #: height of the environment / BT row
@@ -42,27 +43,6 @@ COLORS = 160  #: the GIF palette (one for every frame)
 PALETTE_FRAMES = 8  #: frames the palette is drawn from
 FOOTER = ("blue ✓ success   orange, dashed ✗ failure   ◆ deciding condition   "
           "grey: not ticked")
-
-
-@dataclass(frozen=True)
-class Clip:
-    """What to film of a task: at most ``max_steps`` steps, every ``every``-th one drawn, each
-    shown ``frame_ms`` milliseconds."""
-
-    task: str
-    max_steps: int
-    every: int
-    frame_ms: int
-
-
-CLIPS: tuple[Clip, ...] = (
-    Clip("MountainCar-v0", 200, 1, 60),
-    Clip("CartPole-v1", 200, 4, 90),
-    Clip("FrozenLake-v1", 20, 1, 800),
-    Clip("LunarLander-v3", 400, 5, 110),
-    Clip("PackageDelivery-v0", 40, 1, 600),
-    Clip("highway-fast-v0", 40, 1, 450),
-)
 
 
 @dataclass(frozen=True)
@@ -246,9 +226,15 @@ class Film:
         return canvas
 
 
-def film(clip: Clip, out_dir: Path = FIGURES_DIR / "anim", data_dir: Path = DATA_DIR,
+def filmed_tasks() -> list[Task]:
+    """The registered tasks with a clip (``Task.clip``), in registry order."""
+    return [t for t in TASKS.values() if t.clip is not None]
+
+
+def film(task: Task, out_dir: Path = FIGURES_DIR / "anim", data_dir: Path = DATA_DIR,
          seed: int | None = None) -> dict[str, object]:
-    """Write ``<out_dir>/<task>.gif``; returns what was written (path, frames, size, time)."""
+    """Write ``<out_dir>/<task>.gif`` as the task's clip says; returns what was written (path,
+    frames, size, time)."""
     import imageio.v3 as iio
     from PIL import Image
 
@@ -256,7 +242,9 @@ def film(clip: Clip, out_dir: Path = FIGURES_DIR / "anim", data_dir: Path = DATA
     from ibt.files import atomic_target
 
     start = time.perf_counter()
-    task = get_task(clip.task)
+    clip = task.clip
+    if clip is None:
+        raise ValueError(f"{task.name} has no clip in its catalogue entry (Task.clip)")
     algo = best_expert(task, data_dir)
     bt = load_json(data_dir / "trees" / task.name / algo / "imitation-bt.json")
     movie = Film(task, bt, algo)
@@ -288,19 +276,19 @@ def film(clip: Clip, out_dir: Path = FIGURES_DIR / "anim", data_dir: Path = DATA
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m ibt.views.animate", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("tasks", nargs="*", help="tasks to film (default: all of CLIPS)")
+    parser.add_argument("tasks", nargs="*", help="tasks to film (default: every task with a clip)")
     parser.add_argument("--out", type=Path, default=FIGURES_DIR / "anim",
                         help="folder for the GIFs (default: figures/anim)")
     args = parser.parse_args(argv)
-    known = {clip.task: clip for clip in CLIPS}
+    known = {t.name: t for t in filmed_tasks()}
     unknown = [t for t in args.tasks if t not in known]
     if unknown:
         print(f"error: no clip for {unknown[0]!r}; choose among {', '.join(known)}",
               file=sys.stderr)
         return 2
     start = time.perf_counter()
-    for clip in [known[t] for t in args.tasks] or CLIPS:
-        facts = film(clip, args.out)
+    for task in [known[t] for t in args.tasks] or list(known.values()):
+        facts = film(task, args.out)
         print(f"{facts['path']}: {facts['expert']} expert, {facts['steps']} steps, "
               f"{facts['frames']} frames, {facts['kb']} KB, "
               f"{'collapsed' if facts['collapsed'] else 'full'} BT, {facts['seconds']} s")

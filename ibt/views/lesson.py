@@ -39,12 +39,12 @@ from ibt.bt.model import (
     Sequence,
     as_features,
 )
-from ibt.profiles import Config
 from ibt.distill import schedules
 from ibt.distill.loop import DistillConfig
 from ibt.evaluate.policies import CompiledTree
 from ibt.evaluate.rollouts import TRAIN_SEED_BASE, retention_norm, rollout
 from ibt.experts.expert import Expert, load_expert
+from ibt.profiles import Config
 from ibt.runs.pipeline import distill_cached
 from ibt.synth.logic import Variables, minimise
 from ibt.synth.rules import action_template_library, leaf_paths, literal_count
