@@ -217,7 +217,7 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
 
 
 def _load_bt(path: str | Path):
-    from ibt.export.drawing import load_json
+    from ibt.bt.json_io import load_json
 
     bt_file = shlex.quote(str(Path(path).with_suffix(".json")))
     path = check_input(path, "behavior tree", "make one with `python -m ibt distill CartPole-v1 "
@@ -323,7 +323,7 @@ def _refine(args: argparse.Namespace) -> int:
 
 
 def _synthesize(args: argparse.Namespace) -> int:
-    from ibt.export.drawing import save_json
+    from ibt.bt.json_io import save_json
     from ibt.synth.imitation import NotEquivalentError, imitation_bt
 
     out = check_output(args.output, (".json",))
@@ -410,7 +410,9 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from ibt.export.drawing import require_dot, save_drawing, save_json, to_graphviz
+    from ibt.bt.json_io import save_json
+    from ibt.export.drawing import require_dot, to_graphviz
+    from ibt.export.pictures import save_drawing
     from ibt.files import atomic_write_text
 
     out = check_output(args.output, EXPORT_SUFFIXES[args.format])

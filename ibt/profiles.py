@@ -33,6 +33,7 @@ class Config:
     profile: str
     cache_dir: Path
     data_dir: Path
+    experts_dir: Path  # the expert checkpoints, their manifest and random.csv
     figures_dir: Path
     paper_dir: Path
     n_iterations: int
@@ -50,7 +51,8 @@ class Config:
 
 
 def _paper(**kw: Any) -> dict[str, Any]:
-    return {"cache_dir": DATA_DIR / "cache", "data_dir": DATA_DIR, "figures_dir": FIGURES_DIR,
+    return {"cache_dir": DATA_DIR / "cache", "data_dir": DATA_DIR,
+            "experts_dir": DATA_DIR / "experts", "figures_dir": FIGURES_DIR,
             "paper_dir": PAPER_DIR, "n_iterations": 50, "labels_scale": 1.0,
             "selection_episodes": 20, "final_episodes": 100, "n_seeds": 3, "n_jobs": 2,
             "refresh": False, "progress": True, **kw}
@@ -72,6 +74,7 @@ def _smoke_scratch() -> Path:
 def _smoke(**kw: Any) -> dict[str, Any]:
     scratch = _smoke_scratch()
     return {"cache_dir": scratch / "cache", "data_dir": scratch / "data",
+            "experts_dir": DATA_DIR / "experts",  # the committed experts, read only
             "figures_dir": scratch / "figures", "paper_dir": scratch / "paper",
             "n_iterations": 4, "labels_scale": 0.3, "selection_episodes": 3,
             "final_episodes": 5, "n_seeds": 1, "n_jobs": 1, "refresh": False,
@@ -96,6 +99,6 @@ def config(profile: str | None = None, **overrides: Any) -> Config:
     if os.environ.get("IBT_CACHE_DIR"):  # `make reproduce`: a fresh cache, resumable
         values["cache_dir"] = os.environ["IBT_CACHE_DIR"]
     values.update(overrides)
-    for key in ("cache_dir", "data_dir", "figures_dir", "paper_dir"):
+    for key in ("cache_dir", "data_dir", "experts_dir", "figures_dir", "paper_dir"):
         values[key] = Path(values[key])
     return Config(profile=profile, **values)

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ibt.export.drawing import load_json
+from ibt.bt.json_io import load_json
 from ibt.paths import DATA_DIR
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import Clip

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from sklearn.tree import DecisionTreeClassifier
 
+from ibt.bt.json_io import save_json
 from ibt.cli import main, save_tree_file
 from ibt.experts.expert import expert_path
-from ibt.export.drawing import save_json
 from ibt.synth.imitation import imitation_bt
 from ibt.tasks.catalogue import get_task
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import nbformat
 import pytest
 
-from ibt.export.drawing import load_json
+from ibt.bt.json_io import load_json
 from ibt.views import widgets
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ibt.bt.executors import py_trees_decide, tick, to_py_trees
 from ibt.bt.model import (
     NO_DECISION,
     Action,
@@ -16,9 +17,6 @@ from ibt.bt.model import (
     Inverter,
     Selector,
     Sequence,
-    py_trees_decide,
-    tick,
-    to_py_trees,
 )
 
 FEATURES = ("a", "b")
@@ -193,7 +191,7 @@ def test_validate_proves_that_every_state_reaches_an_action(root, proven):
 
 
 def test_a_gap_is_reported_with_a_state_inside_it():
-    from ibt.bt.model import unreached_state
+    from ibt.bt.coverage import unreached_state
 
     tree = bt(Selector((Sequence((Condition(0, "<=", 0.0), Action(0))),
                         Sequence((Condition(0, ">", 0.5), Action(1))))))
@@ -236,7 +234,7 @@ def test_validate_is_sound(root):
 def test_every_committed_bt_loads_and_is_proven():
     from pathlib import Path
 
-    from ibt.export.drawing import load_json
+    from ibt.bt.json_io import load_json
 
     files = sorted(Path(__file__).parents[1].glob("data/trees/*/*/*.json"))
     assert len(files) >= 24

@@ -18,11 +18,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ibt.bt.json_io import load_json
 from ibt.bt.model import NO_DECISION, Action, BehaviorTree, Condition, Selector, Sequence
 from ibt.evaluate.policies import BTPolicy
 from ibt.evaluate.rollouts import final_seeds, rollout
 from ibt.export.btcpp import BUILTIN_IDS, action_ids, to_btcpp_xml
-from ibt.export.drawing import load_json
 from ibt.export.engine import (
     EngineTree,
     agreement_states,

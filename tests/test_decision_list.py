@@ -13,7 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.bt.model import Action, Selector, decide_batch, iterate
+from ibt.bt.executors import decide_batch
+from ibt.bt.model import Action, Selector, iterate
 from ibt.synth.decision_list import (
     MAX_WORK,
     METHOD,

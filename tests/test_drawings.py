@@ -14,6 +14,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from ibt.bt.executors import tick as tick_bt
+from ibt.bt.json_io import load_json
 from ibt.bt.model import (
     OPS,
     Action,
@@ -24,19 +26,8 @@ from ibt.bt.model import (
     Selector,
     Sequence,
 )
-from ibt.bt.model import tick as tick_bt
-from ibt.export.drawing import (
-    compose,
-    deciding_condition,
-    draw_bt,
-    drawing_elements,
-    fit_graphviz,
-    load_json,
-    measure_graph,
-    require_dot,
-    save_drawing,
-    to_graphviz,
-)
+from ibt.export.drawing import deciding_condition, drawing_elements, require_dot, to_graphviz
+from ibt.export.pictures import compose, draw_bt, fit_graphviz, measure_graph, save_drawing
 from ibt.export.readable import (
     MAX_ASPECT,
     MIN_TEXT_PT,

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 import ibt
+from ibt.bt.json_io import load_json
 from ibt.bt.model import Action, BehaviorTree, Selector, Sequence
 from ibt.distill import schedules
 from ibt.distill.loop import DistillConfig, distill
 from ibt.evaluate.policies import RandomPolicy
 from ibt.evaluate.rollouts import final_seeds, rollout
-from ibt.export.drawing import load_json
 from ibt.paths import DATA_DIR
 from ibt.synth.imitation import imitation_bt
 from ibt.synth.rules import leaf_paths

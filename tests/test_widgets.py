@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ibt.bt.json_io import load_json
 from ibt.bt.model import Action, BehaviorTree, Condition, Selector, Sequence
-from ibt.export.drawing import load_json
 from ibt.paths import DATA_DIR
 from ibt.tasks.catalogue import get_task
 from ibt.views import widgets

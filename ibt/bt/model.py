@@ -14,9 +14,9 @@ occurs and a tick's decision is the first action ticked. Comparisons are made in
 on observations cast to float32 first, which is exactly how scikit-learn's trees decide; this is
 what makes a synthesised BT decide *exactly* as its source tree.
 
-The module offers three executors (``tick`` for one state with a trace, ``decide_batch`` for a
-vectorised NumPy pass, and ``to_py_trees`` for the reference library), node counting, and the JSON
-format of ``data/trees/``.
+This module holds the nodes, node counting and the JSON format of ``data/trees/``; the three
+executors (``tick``, ``decide_batch``, ``to_py_trees``) are in :mod:`ibt.bt.executors`, and the
+proof that every state reaches an action in :mod:`ibt.bt.coverage`.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ import json
 import math
 from collections import Counter
 from collections.abc import Iterator
-from collections.abc import Sequence as Seq
 from dataclasses import dataclass, field
 from typing import Any, Union
 
@@ -159,6 +158,8 @@ class BehaviorTree:
             raise ValueError(f"decide takes a batch of shape (n, {self.n_features}), one row per "
                              f"state, got shape {x.shape}; for one state use tick(bt, state) or "
                              "bt.decide(state[None])")
+        from ibt.bt.executors import decide_batch
+
         return decide_batch(self.root, x)
 
     def label(self, node: Node, precision: int = 4) -> str:
@@ -254,6 +255,9 @@ class BehaviorTree:
                                  f"{len(self.action_names)} actions")
             if isinstance(node, Fallback | Sequence) and not node.children:
                 raise ValueError(f"a {node.type} without children")
+        from ibt.bt.coverage import unreached_state
+        from ibt.bt.executors import decide_batch
+
         state = unreached_state(self)
         if state is not None:
             where = ", ".join(f"{name}={value:.6g}"
@@ -375,343 +379,4 @@ def indexed(root: Node) -> list[tuple[Node, tuple[int, ...]]]:
         return position
 
     walk(root)
-    return out
-
-
-# --------------------------------------------------------------------------- reachability
-# Does every state reach an action? A sound proof over boxes: a box maps features to intervals
-# (lo, hi] (unlisted features are free); a union of boxes is a list. Thresholds are snapped to
-# the largest float32 not above them, which decides every float32 observation alike, so a box
-# holds an observation iff lo < hi on every feature.
-Box = dict[int, tuple[float, float]]
-MAX_BOXES = 4096  # larger unions are dropped from the (under-approximating) acting region
-MAX_REGIONS = 200_000  # regions the cover search may visit before it gives up
-
-
-@dataclass(frozen=True)
-class _Facts:
-    """What holds on every state: a tick acts; success implies it acted; it always succeeds;
-    it always fails; the subtree contains an action."""
-
-    acts: bool
-    guarded: bool
-    succeeds: bool
-    fails: bool
-    has_action: bool
-
-
-def _facts(node: Node, memo: dict[int, _Facts]) -> _Facts:
-    if id(node) in memo:
-        return memo[id(node)]
-    if isinstance(node, Action):
-        out = _Facts(True, True, True, False, True)
-    elif isinstance(node, Condition):
-        out = _Facts(False, False, False, False, False)
-    elif isinstance(node, Inverter):
-        c = _facts(node.child, memo)
-        out = _Facts(c.acts, c.acts or c.succeeds, c.fails, c.succeeds, c.has_action)
-    else:
-        kids = [_facts(child, memo) for child in node.children]
-        sequence = isinstance(node, Sequence)
-        acts = False
-        for k in kids:  # a sequence goes on after a success, a fallback after a failure
-            if k.acts:
-                acts = True
-                break
-            if not (k.succeeds if sequence else k.guarded):
-                break
-        if sequence:
-            succeeds, fails = all(k.succeeds for k in kids), any(k.fails for k in kids)
-            guarded = acts or fails or any(k.guarded for k in kids)
-        else:
-            succeeds, fails = any(k.succeeds for k in kids), all(k.fails for k in kids)
-            guarded = acts or fails or all(k.guarded for k in kids)
-        out = _Facts(acts, guarded, succeeds, fails, any(k.has_action for k in kids))
-    memo[id(node)] = out
-    return out
-
-
-def _snap(threshold: float) -> float:
-    value = np.float32(threshold)
-    if float(value) > threshold:
-        value = np.nextafter(value, np.float32(-np.inf))
-    return float(value)
-
-
-def _meet(a: Box, b: Box) -> Box | None:
-    out = dict(a)
-    for feature, (lo, hi) in b.items():
-        if feature in out:
-            lo, hi = max(lo, out[feature][0]), min(hi, out[feature][1])
-        if lo >= hi:
-            return None
-        out[feature] = (lo, hi)
-    return out
-
-
-def _and(a: list[Box] | None, b: list[Box] | None) -> list[Box] | None:
-    if a is None or b is None:
-        return None
-    out = [m for x in a for y in b if (m := _meet(x, y)) is not None]
-    return out if len(out) <= MAX_BOXES else None
-
-
-def _truth(node: Node, negate: bool = False) -> list[Box] | None:
-    """Where an action-free subtree succeeds (fails, if ``negate``); None if too large."""
-    if isinstance(node, Condition):
-        t = _snap(node.threshold)
-        below = (node.op == "<=") != negate
-        return [{node.feature: (-math.inf, t) if below else (t, math.inf)}]
-    if isinstance(node, Inverter):
-        return _truth(node.child, not negate)
-    parts = [_truth(child, negate) for child in getattr(node, "children", ())]
-    if isinstance(node, Sequence) != negate:  # a conjunction
-        out: list[Box] | None = [{}]
-        for part in parts:
-            out = _and(out, part)
-        return out
-    if any(part is None for part in parts):
-        return None
-    union = [box for part in parts for box in part or ()]
-    return union if len(union) <= MAX_BOXES else None
-
-
-def _acting(node: Node, memo: dict[int, _Facts]) -> list[Box]:
-    """States on which a tick of ``node`` surely reaches an action (an under-approximation)."""
-    facts = _facts(node, memo)
-    if facts.acts:
-        return [{}]
-    if isinstance(node, Inverter):
-        return _acting(node.child, memo)
-    if not isinstance(node, Fallback | Sequence):
-        return []
-    sequence = isinstance(node, Sequence)
-    out: list[Box] = []
-    reach: list[Box] | None = [{}]  # states that reach this child or have already acted
-    for child in node.children:
-        acting = _acting(child, memo)
-        out += [m for r in reach or () for b in acting if (m := _meet(r, b)) is not None]
-        kid = _facts(child, memo)
-        if not kid.has_action:
-            reach = _and(reach, _truth(child, negate=not sequence))
-        elif not (kid.succeeds if sequence else kid.guarded):
-            break
-        if not reach or len(out) > MAX_BOXES:
-            break
-    return out
-
-
-def _contains(box: Box, region: Box) -> bool:
-    full = (-math.inf, math.inf)
-    return all(lo <= region.get(f, full)[0] and region.get(f, full)[1] <= hi
-               for f, (lo, hi) in box.items())
-
-
-def _uncovered(boxes: list[Box]) -> Box | None:
-    """A region no box touches, or None when the boxes cover every state."""
-    full = (-math.inf, math.inf)
-    stack: list[tuple[Box, list[Box]]] = [({}, boxes)]
-    visited = 0
-    while stack:
-        region, candidates = stack.pop()
-        visited += 1
-        if visited > MAX_REGIONS:
-            raise ValueError(f"could not prove within {MAX_REGIONS} regions that every state "
-                             "reaches an action; end the root Selector with an unguarded "
-                             "default action")
-        live = [b for b in candidates if _meet(region, b) is not None]
-        if not live:
-            return region
-        if any(_contains(b, region) for b in live):
-            continue
-        # split the region on a bound of the first box that cuts it
-        for feature, (lo, hi) in live[0].items():
-            rlo, rhi = region.get(feature, full)
-            cut = lo if rlo < lo < rhi else hi if rlo < hi < rhi else None
-            if cut is not None:
-                stack.append(({**region, feature: (cut, rhi)}, live))
-                stack.append(({**region, feature: (rlo, cut)}, live))
-                break
-    return None
-
-
-def unreached_state(tree: BehaviorTree) -> np.ndarray | None:
-    """A state on which ticking ``tree`` reaches no action, or None when every state (every
-    float32 observation) provably reaches one. Raises ``ValueError`` if the search gives up."""
-    memo: dict[int, _Facts] = {}
-    if _facts(tree.root, memo).acts:
-        return None
-    region = _uncovered(_acting(tree.root, memo))
-    if region is None:
-        return None
-    state = np.zeros(tree.n_features, dtype=np.float32)
-    for feature, (lo, hi) in region.items():
-        state[feature] = hi if math.isfinite(hi) else (
-            np.nextafter(np.float32(lo), np.float32(np.inf)) if math.isfinite(lo) else 0.0)
-    return state
-
-
-# ------------------------------------------------------------------------------ executors
-def as_features(x: np.ndarray) -> np.ndarray:
-    """Observations as the trees compare them: float32 values widened to float64."""
-    return np.asarray(x, dtype=np.float32).astype(np.float64)
-
-
-def decide_batch(root: Node, features: np.ndarray) -> np.ndarray:
-    """Vectorised tick of a batch ``(n, n_features)``; ``NO_DECISION`` where no action was
-    reached (:meth:`BehaviorTree.validate` proves that this never happens)."""
-    x = as_features(features)
-    if x.ndim != 2:
-        raise ValueError(f"decide_batch takes a batch of shape (n, n_features), got shape "
-                         f"{x.shape}; for one state pass state[None]")
-    decision = np.full(len(x), NO_DECISION, dtype=np.int64)
-    _tick_mask(root, x, np.ones(len(x), dtype=bool), decision)
-    return decision
-
-
-def _tick_mask(node: Node, x: np.ndarray, active: np.ndarray, decision: np.ndarray) -> np.ndarray:
-    """Tick ``node`` on the rows in ``active``; return the success mask (False off ``active``)."""
-    if isinstance(node, Condition):
-        column = x[:, node.feature]
-        hit = column <= node.threshold if node.op == "<=" else column > node.threshold
-        return active & hit
-    if isinstance(node, Action):
-        undecided = active & (decision == NO_DECISION)
-        decision[undecided] = node.action
-        return active.copy()
-    if isinstance(node, Inverter):
-        return active & ~_tick_mask(node.child, x, active, decision)
-    if isinstance(node, Sequence):
-        running = active.copy()
-        for child in node.children:
-            if not running.any():
-                break
-            running = _tick_mask(child, x, running, decision)
-        return running
-    # Selector / Fallback
-    pending = active.copy()
-    success = np.zeros_like(active)
-    for child in node.children:
-        if not pending.any():
-            break
-        ok = _tick_mask(child, x, pending, decision)
-        success |= ok
-        pending &= ~ok
-    return success
-
-
-@dataclass(frozen=True)
-class TraceStep:
-    """One ticked node: its depth-first index, depth, label and status."""
-
-    index: int
-    depth: int
-    label: str
-    success: bool
-
-
-def tick(tree: BehaviorTree, features: Seq[float] | np.ndarray) -> tuple[int, list[TraceStep]]:
-    """Tick one state (shape exactly ``(n_features,)``); return the decision and the trace of
-    every node ticked, in order, each named by its depth-first position (:func:`indexed`)."""
-    x = as_features(np.asarray(features))
-    if x.shape != (tree.n_features,):
-        raise ValueError(f"tick takes one state of shape ({tree.n_features},), got shape "
-                         f"{x.shape}; for a batch use bt.decide(states)")
-    nodes = indexed(tree.root)
-    trace: list[TraceStep] = []
-    decision = [NO_DECISION]
-
-    def visit(position: int, depth: int) -> bool:
-        node, children = nodes[position]
-        if isinstance(node, Condition):
-            value = x[node.feature]
-            ok = bool(value <= node.threshold if node.op == "<=" else value > node.threshold)
-        elif isinstance(node, Action):
-            if decision[0] == NO_DECISION:
-                decision[0] = node.action
-            ok = True
-        else:
-            trace.append(TraceStep(position, depth, tree.label(node), False))
-            slot = len(trace) - 1
-            if isinstance(node, Inverter):
-                ok = not visit(children[0], depth + 1)
-            else:
-                want = isinstance(node, Sequence)  # a sequence continues on success
-                ok = want
-                for child in children:
-                    if visit(child, depth + 1) != want:
-                        ok = not want
-                        break
-            trace[slot] = TraceStep(position, depth, trace[slot].label, ok)
-            return ok
-        trace.append(TraceStep(position, depth, tree.label(node), ok))
-        return ok
-
-    visit(0, 0)
-    return decision[0], trace
-
-
-# ------------------------------------------------------------------------------- py_trees
-def to_py_trees(tree: BehaviorTree, features: np.ndarray | None = None):
-    """The reference py_trees tree; conditions and actions read/write a shared blackboard dict.
-
-    Returns ``(root, io)`` where ``io`` is a dict: set ``io["features"]`` before ticking, read
-    ``io["decision"]`` after (``NO_DECISION`` when no action ran).
-    """
-    import py_trees
-
-    io: dict[str, Any] = {"features": features, "decision": NO_DECISION,
-                          "n_features": tree.n_features}
-    Status = py_trees.common.Status
-
-    class _Condition(py_trees.behaviour.Behaviour):
-        def __init__(self, name: str, node: Condition) -> None:
-            super().__init__(name)
-            self.node = node
-
-        def update(self):
-            value = as_features(io["features"])[self.node.feature]
-            hit = value <= self.node.threshold if self.node.op == "<=" else (
-                value > self.node.threshold)
-            return Status.SUCCESS if hit else Status.FAILURE
-
-    class _Action(py_trees.behaviour.Behaviour):
-        def __init__(self, name: str, node: Action) -> None:
-            super().__init__(name)
-            self.node = node
-
-        def update(self):
-            if io["decision"] == NO_DECISION:
-                io["decision"] = self.node.action
-            return Status.SUCCESS
-
-    def build(node: Node):
-        name = tree.label(node)
-        if isinstance(node, Condition):
-            return _Condition(name, node)
-        if isinstance(node, Action):
-            return _Action(name, node)
-        if isinstance(node, Inverter):
-            return py_trees.decorators.Inverter(name="Inverter", child=build(node.child))
-        children = [build(c) for c in node.children]
-        if isinstance(node, Sequence):
-            return py_trees.composites.Sequence(name=name, memory=False, children=children)
-        return py_trees.composites.Selector(name=name, memory=False, children=children)
-
-    return build(tree.root), io
-
-
-def py_trees_decide(root, io: dict[str, Any], features: np.ndarray) -> np.ndarray:
-    """Tick a py_trees tree from :func:`to_py_trees` once per row of ``features``, a batch of
-    shape exactly ``(n, n_features)``."""
-    x = np.asarray(features)
-    if x.ndim != 2 or x.shape[1] != io["n_features"]:
-        raise ValueError(f"py_trees_decide takes a batch of shape (n, {io['n_features']}), got "
-                         f"shape {x.shape}; for one state pass state[None]")
-    out = np.empty(len(x), dtype=np.int64)
-    for i, row in enumerate(x):
-        io["features"] = row
-        io["decision"] = NO_DECISION
-        root.tick_once()
-        out[i] = io["decision"]
     return out

@@ -14,7 +14,8 @@ from typing import Protocol
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.bt.model import NO_DECISION, BehaviorTree, as_features
+from ibt.bt.executors import as_features
+from ibt.bt.model import NO_DECISION, BehaviorTree
 from ibt.tasks.catalogue import Task
 
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ibt.bt.executors import py_trees_decide, to_py_trees
 from ibt.bt.model import (
     NO_DECISION,
     Action,
@@ -25,8 +26,6 @@ from ibt.bt.model import (
     Inverter,
     Node,
     Sequence,
-    py_trees_decide,
-    to_py_trees,
 )
 
 

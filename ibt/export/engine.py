@@ -25,17 +25,8 @@ from typing import Any
 import behaviortreepy as btpy
 import numpy as np
 
-from ibt.bt.model import (
-    NO_DECISION,
-    Action,
-    BehaviorTree,
-    Condition,
-    Inverter,
-    Node,
-    as_features,
-    decide_batch,
-    iterate,
-)
+from ibt.bt.executors import as_features, decide_batch
+from ibt.bt.model import NO_DECISION, Action, BehaviorTree, Condition, Inverter, Node, iterate
 from ibt.bt.model import Sequence as SequenceNode
 from ibt.evaluate.policies import BTPolicy
 from ibt.evaluate.rollouts import Rollout, rollout
@@ -338,7 +329,7 @@ def _rate(fn: Callable[[np.ndarray], Any], states: np.ndarray, min_seconds: floa
 def ticks_per_second(engine: EngineTree, states: np.ndarray,
                      min_seconds: float = 0.25) -> dict[str, float]:
     """Ticks per second, one state per tick, of the engine (blackboard filled each tick) and of
-    ``ibt``'s executor (:func:`ibt.bt.model.decide_batch`, what
+    ``ibt``'s executor (:func:`ibt.bt.executors.decide_batch`, what
     :class:`ibt.evaluate.policies.BTPolicy` runs)."""
     states = np.asarray(states[:2000], dtype=np.float32)
     root = engine.bt.root

@@ -102,6 +102,6 @@ def measure(path: str | Path) -> Readability:
         text = dict(getattr(image, "text", {}) or {})
     if KEY_FONT not in text or KEY_DPI not in text:
         raise ValueError(f"{path} carries no readability stamp; write it with "
-                         "ibt.report.plots.save_figure or ibt.export.drawing.save_drawing")
+                         "ibt.report.plots.save_figure or ibt.export.pictures.save_drawing")
     return Readability(path, width, height, text.get(KEY_KIND, "plot"), float(text[KEY_FONT]),
                        float(text[KEY_DPI]))

@@ -371,7 +371,7 @@ def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figu
 def image_panels(images: dict[str, str | Path], path: str | Path | None = None,
                  widths: list[float] | None = None) -> plt.Figure:
     """Rendered drawings side by side with titles. Each is rescaled to a common height, so
-    prefer :func:`ibt.export.drawing.compose`, which keeps every panel at one scale."""
+    prefer :func:`ibt.export.pictures.compose`, which keeps every panel at one scale."""
     arrays = {title: plt.imread(str(p)) for title, p in images.items()}
     widths = widths or [a.shape[1] / a.shape[0] for a in arrays.values()]
     fig, axes = plt.subplots(1, len(arrays), figsize=(FIG_WIDTH, 4),

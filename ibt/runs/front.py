@@ -235,7 +235,7 @@ def point_row(cfg: Config, point: Point) -> dict[str, Any]:
     sizes = bt_sizes(cfg, spec, tree)
     evaluation = evaluate_tree(cfg, spec, tree)
     expert = expert_evaluation(cfg, spec, point.algo)["mean_return"]
-    random_return = spec.random_return()
+    random_return = spec.random_return(cfg.experts_dir)
     row.update({k: v for k, v in sizes.items() if k != "bt"})
     row.update({"mean_return": evaluation["mean_return"], "std_return": evaluation["std_return"],
                 "expert_return": expert, "random_return": random_return,
@@ -276,7 +276,7 @@ def anchor_table(cfg: Config, experts: list[tuple[str, str]]) -> pd.DataFrame:
                          "tree_nodes": anchor.nodes, "tree_leaves": anchor.leaves,
                          "mean_return": anchor.mean_return,
                          "retention_norm": retention_norm(anchor.mean_return, expert,
-                                                          spec.random_return())})
+                                                          spec.random_return(cfg.experts_dir))})
     return pd.DataFrame(rows, columns=["source", "task", "expert", "tree_nodes", "tree_leaves",
                                        "mean_return", "retention_norm"])
 

@@ -94,10 +94,11 @@ def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, flo
     """The expert's return on the profile's final-evaluation episodes (cached)."""
     task = get_task(task)
     params = {"task": task.name, "algo": algo, "episodes": cfg.final_episodes,
-              "expert_sha256": file_digest(expert_path(task, algo))}
+              "expert_sha256": file_digest(expert_path(task, algo, cfg.experts_dir))}
 
     def compute() -> dict[str, float]:
-        result = rollout(task, load_expert(task, algo).act, final_seeds(cfg.final_episodes))
+        expert = load_expert(task, algo, expert_path(task, algo, cfg.experts_dir))
+        result = rollout(task, expert.act, final_seeds(cfg.final_episodes))
         return {"mean_return": result.mean, "std_return": result.std}
 
     return load_or_compute("expert-eval", params, compute, cache_dir=cfg.cache_dir,
@@ -143,7 +144,7 @@ def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
     tree = run.best_tree
     evaluation = evaluate_tree(cfg, cell.task, tree)
     expert = expert_evaluation(cfg, cell.task, cell.algo)
-    random_return = cell.task.random_return()
+    random_return = cell.task.random_return(cfg.experts_dir)
     schedule = Schedule(**run.config["schedule"])
     row = {"task": cell.task.name, "expert": cell.algo, "method": cell.method,
            "seed": cell.seed,
@@ -158,7 +159,8 @@ def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
            "best_iteration": run.best_index, "expert_labels": run.expert_labels,
            # the distillation's own recorded time: stable across cache hits, unlike this call's
            "wall_seconds": round(run.wall_seconds, 2),
-           "expert_status": expert_statuses().get((cell.task.name, cell.algo), "ok")}
+           "expert_status": expert_statuses(cfg.experts_dir).get((cell.task.name, cell.algo),
+                                                                  "ok")}
     row.update({k: v for k, v in evaluation.items() if k.endswith("_rate")})
     return row
 
@@ -195,9 +197,9 @@ def run_grid(cfg: Config, cells: Sequence[Cell], *, n_jobs: int | None = None,
     return pd.DataFrame(rows)
 
 
-def available(cells: Iterable[Cell]) -> list[Cell]:
+def available(cells: Iterable[Cell], experts_dir: Path | None = None) -> list[Cell]:
     """The cells whose expert checkpoint is committed (the others are reported as missing)."""
-    return [c for c in cells if expert_path(c.task, c.algo).exists()]
+    return [c for c in cells if expert_path(c.task, c.algo, experts_dir).exists()]
 
 
 def write_results(cfg: Config, frame: pd.DataFrame, name: str, **facts: Any) -> Path | None:
@@ -340,12 +342,12 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
     sources = {name: baseline_source if s.source == "baseline" else s.source
                for name, s in SYNTHESISERS.items()}
     pairs = list(results[["task", "expert"]].drop_duplicates().itertuples(index=False))
-    statuses = expert_statuses()
+    statuses = expert_statuses(cfg.experts_dir)
     rows = []
     for task, algo in tqdm(pairs, desc="synthesis", disable=not cfg.progress):
         spec = get_task(task)
         expert_return = expert_evaluation(cfg, spec, algo)["mean_return"]
-        random_return = spec.random_return()
+        random_return = spec.random_return(cfg.experts_dir)
         for method in bt_methods():
             source = sources[method]
             runs = results[(results.task == task) & (results.expert == algo)

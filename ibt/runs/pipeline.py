@@ -12,6 +12,7 @@ from typing import Any
 
 import pandas as pd
 
+from ibt.bt.json_io import save_json
 from ibt.bt.model import BehaviorTree
 from ibt.distill.loop import Distillation, DistillConfig, distill
 from ibt.evaluate.rollouts import (
@@ -22,7 +23,6 @@ from ibt.evaluate.rollouts import (
     rollout,
 )
 from ibt.experts.expert import expert_path, load_expert
-from ibt.export.drawing import save_json
 from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.runs.cache import load_or_compute
@@ -49,7 +49,7 @@ def distill_params(cfg: Config, task: str | Task, algo: str, method: str = "imit
     task_obj = get_task(task)
     dcfg = distill_config(cfg, task_obj, method, **overrides)
     return {"task": task_obj.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
-            "expert_sha256": file_digest(expert_path(task_obj, algo))}
+            "expert_sha256": file_digest(expert_path(task_obj, algo, cfg.experts_dir))}
 
 
 def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
@@ -63,7 +63,8 @@ def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imit
     params = distill_params(cfg, task_obj, algo, method, seed, **overrides)
 
     def compute() -> Distillation:
-        return distill(task_obj, load_expert(task_obj, algo), dcfg, seed, progress=cfg.progress)
+        expert = load_expert(task_obj, algo, expert_path(task_obj, algo, cfg.experts_dir))
+        return distill(task_obj, expert, dcfg, seed, progress=cfg.progress)
 
     return load_or_compute("distill", params, compute, cache_dir=cfg.cache_dir,
                            codec="distillation", refresh=cfg.refresh)

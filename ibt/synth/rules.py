@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.bt.model import as_features
+from ibt.bt.executors import as_features
 
 
 @dataclass(frozen=True, order=True)

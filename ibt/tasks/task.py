@@ -19,6 +19,7 @@ import os
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -152,9 +153,10 @@ class Task:
             return rng.integers(low, high + 1, size=(n, len(low))).astype(np.float32)
         return rng.uniform(low, high, size=(n, len(low))).astype(np.float32)
 
-    def random_return(self) -> float:
-        """Mean return of the uniform random policy (committed in data/experts/random.csv)."""
-        path = DATA_DIR / "experts" / "random.csv"
+    def random_return(self, experts_dir: Path | None = None) -> float:
+        """Mean return of the uniform random policy (``random.csv`` of the experts folder,
+        committed in data/experts/random.csv)."""
+        path = (experts_dir or DATA_DIR / "experts") / "random.csv"
         if path.exists():
             with path.open() as fh:
                 for row in csv.DictReader(fh):

@@ -8,7 +8,7 @@ value
 that decided it. The BT is the committed ``data/trees/<task>/<algo>/imitation-bt.json`` of the
 task's best expert (:func:`best_expert`); the episode is the first of the fixed final-evaluation
 episodes, so a GIF comes out the same on every run. A BT too large to read in a frame is drawn
-collapsed per action (:func:`ibt.export.drawing.fit_graphviz`).
+collapsed per action (:func:`ibt.export.pictures.fit_graphviz`).
 
 ``python -m ibt.views.animate`` (``make animations``) writes ``figures/anim/<task>.gif``.
 """
@@ -26,8 +26,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ibt.bt.model import BehaviorTree, Condition, TraceStep, tick
-from ibt.export.drawing import deciding_condition, load_json, measure_graph, to_graphviz
+from ibt.bt.executors import TraceStep, tick
+from ibt.bt.json_io import load_json
+from ibt.bt.model import BehaviorTree, Condition
+from ibt.export.drawing import deciding_condition, to_graphviz
+from ibt.export.pictures import measure_graph
 from ibt.paths import DATA_DIR, FIGURES_DIR
 from ibt.tasks.catalogue import TASKS
 from ibt.tasks.task import Task, sdl_video_driver

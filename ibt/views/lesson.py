@@ -29,16 +29,8 @@ import numpy as np
 import pandas as pd
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.bt.model import (
-    Action,
-    BehaviorTree,
-    Condition,
-    Fallback,
-    Node,
-    Selector,
-    Sequence,
-    as_features,
-)
+from ibt.bt.executors import as_features
+from ibt.bt.model import Action, BehaviorTree, Condition, Fallback, Node, Selector, Sequence
 from ibt.distill import schedules
 from ibt.distill.loop import DistillConfig
 from ibt.evaluate.policies import CompiledTree

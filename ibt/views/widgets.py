@@ -38,7 +38,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from ibt.bt.model import BehaviorTree, Condition, as_features, tick
+from ibt.bt.executors import as_features, tick
+from ibt.bt.model import BehaviorTree, Condition
 from ibt.tasks.catalogue import Task, get_task
 
 ACTION_COLORS = ("#4575b4", "#fee090", "#d73027", "#91bfdb", "#fc8d59", "#1a9850", "#998ec3",

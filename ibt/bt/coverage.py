@@ -1,0 +1,194 @@
+"""Reachability: a proof that every state reaches an action of a Behavior Tree, or a state that
+does not (what :meth:`ibt.bt.model.BehaviorTree.validate` reports).
+
+Regions are unions of boxes over the features; the acting region of the root is
+under-approximated and its complement searched for an uncovered box.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ibt.bt.model import (
+    Action,
+    BehaviorTree,
+    Condition,
+    Fallback,
+    Inverter,
+    Node,
+    Sequence,
+)
+
+# Does every state reach an action? A sound proof over boxes: a box maps features to intervals
+# (lo, hi] (unlisted features are free); a union of boxes is a list. Thresholds are snapped to
+# the largest float32 not above them, which decides every float32 observation alike, so a box
+# holds an observation iff lo < hi on every feature.
+Box = dict[int, tuple[float, float]]
+MAX_BOXES = 4096  # larger unions are dropped from the (under-approximating) acting region
+MAX_REGIONS = 200_000  # regions the cover search may visit before it gives up
+
+
+@dataclass(frozen=True)
+class _Facts:
+    """What holds on every state: a tick acts; success implies it acted; it always succeeds;
+    it always fails; the subtree contains an action."""
+
+    acts: bool
+    guarded: bool
+    succeeds: bool
+    fails: bool
+    has_action: bool
+
+
+def _facts(node: Node, memo: dict[int, _Facts]) -> _Facts:
+    if id(node) in memo:
+        return memo[id(node)]
+    if isinstance(node, Action):
+        out = _Facts(True, True, True, False, True)
+    elif isinstance(node, Condition):
+        out = _Facts(False, False, False, False, False)
+    elif isinstance(node, Inverter):
+        c = _facts(node.child, memo)
+        out = _Facts(c.acts, c.acts or c.succeeds, c.fails, c.succeeds, c.has_action)
+    else:
+        kids = [_facts(child, memo) for child in node.children]
+        sequence = isinstance(node, Sequence)
+        acts = False
+        for k in kids:  # a sequence goes on after a success, a fallback after a failure
+            if k.acts:
+                acts = True
+                break
+            if not (k.succeeds if sequence else k.guarded):
+                break
+        if sequence:
+            succeeds, fails = all(k.succeeds for k in kids), any(k.fails for k in kids)
+            guarded = acts or fails or any(k.guarded for k in kids)
+        else:
+            succeeds, fails = any(k.succeeds for k in kids), all(k.fails for k in kids)
+            guarded = acts or fails or all(k.guarded for k in kids)
+        out = _Facts(acts, guarded, succeeds, fails, any(k.has_action for k in kids))
+    memo[id(node)] = out
+    return out
+
+
+def _snap(threshold: float) -> float:
+    value = np.float32(threshold)
+    if float(value) > threshold:
+        value = np.nextafter(value, np.float32(-np.inf))
+    return float(value)
+
+
+def _meet(a: Box, b: Box) -> Box | None:
+    out = dict(a)
+    for feature, (lo, hi) in b.items():
+        if feature in out:
+            lo, hi = max(lo, out[feature][0]), min(hi, out[feature][1])
+        if lo >= hi:
+            return None
+        out[feature] = (lo, hi)
+    return out
+
+
+def _and(a: list[Box] | None, b: list[Box] | None) -> list[Box] | None:
+    if a is None or b is None:
+        return None
+    out = [m for x in a for y in b if (m := _meet(x, y)) is not None]
+    return out if len(out) <= MAX_BOXES else None
+
+
+def _truth(node: Node, negate: bool = False) -> list[Box] | None:
+    """Where an action-free subtree succeeds (fails, if ``negate``); None if too large."""
+    if isinstance(node, Condition):
+        t = _snap(node.threshold)
+        below = (node.op == "<=") != negate
+        return [{node.feature: (-math.inf, t) if below else (t, math.inf)}]
+    if isinstance(node, Inverter):
+        return _truth(node.child, not negate)
+    parts = [_truth(child, negate) for child in getattr(node, "children", ())]
+    if isinstance(node, Sequence) != negate:  # a conjunction
+        out: list[Box] | None = [{}]
+        for part in parts:
+            out = _and(out, part)
+        return out
+    if any(part is None for part in parts):
+        return None
+    union = [box for part in parts for box in part or ()]
+    return union if len(union) <= MAX_BOXES else None
+
+
+def _acting(node: Node, memo: dict[int, _Facts]) -> list[Box]:
+    """States on which a tick of ``node`` surely reaches an action (an under-approximation)."""
+    facts = _facts(node, memo)
+    if facts.acts:
+        return [{}]
+    if isinstance(node, Inverter):
+        return _acting(node.child, memo)
+    if not isinstance(node, Fallback | Sequence):
+        return []
+    sequence = isinstance(node, Sequence)
+    out: list[Box] = []
+    reach: list[Box] | None = [{}]  # states that reach this child or have already acted
+    for child in node.children:
+        acting = _acting(child, memo)
+        out += [m for r in reach or () for b in acting if (m := _meet(r, b)) is not None]
+        kid = _facts(child, memo)
+        if not kid.has_action:
+            reach = _and(reach, _truth(child, negate=not sequence))
+        elif not (kid.succeeds if sequence else kid.guarded):
+            break
+        if not reach or len(out) > MAX_BOXES:
+            break
+    return out
+
+
+def _contains(box: Box, region: Box) -> bool:
+    full = (-math.inf, math.inf)
+    return all(lo <= region.get(f, full)[0] and region.get(f, full)[1] <= hi
+               for f, (lo, hi) in box.items())
+
+
+def _uncovered(boxes: list[Box]) -> Box | None:
+    """A region no box touches, or None when the boxes cover every state."""
+    full = (-math.inf, math.inf)
+    stack: list[tuple[Box, list[Box]]] = [({}, boxes)]
+    visited = 0
+    while stack:
+        region, candidates = stack.pop()
+        visited += 1
+        if visited > MAX_REGIONS:
+            raise ValueError(f"could not prove within {MAX_REGIONS} regions that every state "
+                             "reaches an action; end the root Selector with an unguarded "
+                             "default action")
+        live = [b for b in candidates if _meet(region, b) is not None]
+        if not live:
+            return region
+        if any(_contains(b, region) for b in live):
+            continue
+        # split the region on a bound of the first box that cuts it
+        for feature, (lo, hi) in live[0].items():
+            rlo, rhi = region.get(feature, full)
+            cut = lo if rlo < lo < rhi else hi if rlo < hi < rhi else None
+            if cut is not None:
+                stack.append(({**region, feature: (cut, rhi)}, live))
+                stack.append(({**region, feature: (rlo, cut)}, live))
+                break
+    return None
+
+
+def unreached_state(tree: BehaviorTree) -> np.ndarray | None:
+    """A state on which ticking ``tree`` reaches no action, or None when every state (every
+    float32 observation) provably reaches one. Raises ``ValueError`` if the search gives up."""
+    memo: dict[int, _Facts] = {}
+    if _facts(tree.root, memo).acts:
+        return None
+    region = _uncovered(_acting(tree.root, memo))
+    if region is None:
+        return None
+    state = np.zeros(tree.n_features, dtype=np.float32)
+    for feature, (lo, hi) in region.items():
+        state[feature] = hi if math.isfinite(hi) else (
+            np.nextafter(np.float32(lo), np.float32(np.inf)) if math.isfinite(lo) else 0.0)
+    return state
