@@ -24,11 +24,11 @@ __version__ = "0.1.0"
 
 #: The convenience API of notebooks: name -> the module that defines it (imported lazily).
 _LAZY: dict[str, str] = {
-    "BehaviorTree": "ibt.bt.model", "tick": "ibt.bt.model",
+    "BehaviorTree": "ibt.bt.model", "tick": "ibt.bt.executors",
     "config": "ibt.profiles",
     "decision_list_bt": "ibt.synth.decision_list",
     "METHODS": "ibt.distill.loop", "DistillConfig": "ibt.distill.loop",
-    "load_expert": "ibt.experts.expert",
+    "load_expert": "ibt.runs.pipeline",
     "load_json": "ibt.bt.json_io", "save_drawing": "ibt.export.pictures",
     "save_json": "ibt.bt.json_io", "to_graphviz": "ibt.export.drawing",
     "compare_policies": "ibt.runs.pipeline", "distill_cached": "ibt.runs.pipeline",
@@ -44,10 +44,20 @@ __all__ = sorted(_LAZY)
 def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
-        raise AttributeError(f"module 'ibt' has no attribute {name!r}")
+        return _submodule(__name__, name)
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value  # later lookups skip this function
     return value
+
+
+def _submodule(package: str, name: str) -> Any:
+    """``package.name`` imported on first attribute access (``ibt.export.pictures.draw_bt``
+    works after a bare ``import ibt``); an unknown name is an ``AttributeError``."""
+    import importlib.util
+
+    if name.startswith("_") or importlib.util.find_spec(f"{package}.{name}") is None:
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+    return importlib.import_module(f"{package}.{name}")
 
 
 def __dir__() -> list[str]:

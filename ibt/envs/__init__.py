@@ -18,3 +18,9 @@ if ENV_ID not in gymnasium.registry:
     )
 
 __all__ = ["ENV_ID"]
+
+
+def __getattr__(name: str) -> object:
+    from ibt import _submodule
+
+    return _submodule(__name__, name)

@@ -22,7 +22,8 @@ from ibt.evaluate.rollouts import (
     retention_raw,
     rollout,
 )
-from ibt.experts.expert import expert_path, load_expert
+from ibt.experts import expert as experts
+from ibt.experts.expert import Expert, expert_path
 from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.runs.cache import load_or_compute
@@ -63,11 +64,18 @@ def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imit
     params = distill_params(cfg, task_obj, algo, method, seed, **overrides)
 
     def compute() -> Distillation:
-        expert = load_expert(task_obj, algo, expert_path(task_obj, algo, cfg.experts_dir))
+        expert = experts.load_expert(task_obj, algo,
+                                     expert_path(task_obj, algo, cfg.experts_dir))
         return distill(task_obj, expert, dcfg, seed, progress=cfg.progress)
 
     return load_or_compute("distill", params, compute, cache_dir=cfg.cache_dir,
                            codec="distillation", refresh=cfg.refresh)
+
+
+def load_expert(task: str | Task, algo: str, path: str | Path | None = None) -> Expert:
+    """The notebooks' expert loader (``ibt.load_expert``): a task name or :class:`Task`,
+    resolved here at the boundary (:func:`ibt.experts.expert.load_expert` takes the Task)."""
+    return experts.load_expert(get_task(task), algo, path)
 
 
 def iterations_frame(run: Distillation) -> pd.DataFrame:
