@@ -14,7 +14,7 @@ export PYTHONHASHSEED := 0
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
 
-$(STAMP): environment.lock pyproject.toml
+$(STAMP): environment.lock pyproject.toml | check-dot
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r environment.lock
@@ -35,7 +35,7 @@ figures: setup ## re-run every notebook (paper profile, cached results) and rewr
 		$(BIN)/python -m ibt.notebooks scrub $$nb; \
 	done; \
 	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start )); \
-	$(BIN)/python -m ibt.runs.cache_admin stale --reads build/cache-reads  # what this run skipped
+	$(BIN)/python -m ibt.runs.cache_admin stale --reads build/cache-reads --count  # what this run skipped, in one line
 
 animations: setup ## the GIFs of Behavior Trees in motion, figures/anim/*.gif (about a minute)
 	@start=$$(date +%s); nice -n 10 $(BIN)/python -m ibt.views.animate --out figures/anim; \
@@ -44,7 +44,7 @@ animations: setup ## the GIFs of Behavior Trees in motion, figures/anim/*.gif (a
 reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
 	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started
 	@echo "Last time on this kind of machine each stage took (an estimate; progress bars follow):"
-	@$(BIN)/python -c "from ibt.report.markdown import Results, timings_markdown; from ibt.paths import DATA_DIR; print(timings_markdown(Results(DATA_DIR)))"
+	@$(BIN)/python -c "from ibt.report.markdown import Results, timings_markdown; from ibt.paths import DATA_DIR; print(timings_markdown(Results(DATA_DIR), with_record=True))"
 	$(BIN)/python -m ibt train --refresh-before build/reproduce/started
 	$(BIN)/python -m ibt random-baselines
 	IBT_CACHE_DIR=$(CURDIR)/build/reproduce/cache $(MAKE) figures

@@ -1,12 +1,13 @@
 """``python -m ibt``: the pipeline's steps without notebooks.
 
     python -m ibt train CartPole-v1 --algo ppo           # train + record committed experts
-    python -m ibt distill CartPole-v1 ppo -o tree.joblib  # expert -> decision tree
-    python -m ibt refine tree.joblib -o small.joblib --max-leaves 3  # raise its return
-    python -m ibt synthesize tree.joblib -o bt.json       # decision tree -> behavior tree
+    python -m ibt distill CartPole-v1 ppo -o tree.json    # expert -> decision tree
+    python -m ibt refine tree.json -o small.json --max-leaves 3  # raise its return
+    python -m ibt synthesize tree.json -o bt.json         # decision tree -> behavior tree
     python -m ibt evaluate bt.json --task CartPole-v1     # returns of a BT, tree or expert
     python -m ibt export bt.json --format btcpp-xml -o bt.xml
     python -m ibt run-btcpp bt.xml --task CartPole-v1     # BehaviorTree.CPP ticks the BT
+    python -m ibt pipeline CartPole-v1 ppo -o out/        # all of it: a recommended BT + report
 
 Your own environment: ``--env-module PKG.MODULE`` (every subcommand) imports a module that
 registers gymnasium environments and, optionally, ibt tasks (``ibt.tasks.catalogue.register_task``,
@@ -15,13 +16,22 @@ readable feature and action names); gymnasium's ``PKG.MODULE:EnvId`` works as a 
 ``distill`` takes any gymnasium env id with an SB3 checkpoint (``--checkpoint``); the features
 are then named x0, x1, ... and tasks without a budget get a 16-leaf tree.
 
+Files: decision trees (``ibt-tree``) and BTs are JSON and reading them never runs code; a tree
+file of earlier versions (``.joblib``, a pickle) is converted once, if you trust its source, by
+``python -m ibt convert-tree old.joblib -o tree.json --trust-pickle``. An SB3 checkpoint
+(``--checkpoint``) IS code (its zip holds pickles): load only checkpoints from a trusted source;
+they are checked against the task (spaces, normalisation sidecar ``<ckpt>.obs_norm.json``).
+
 Exit codes: 0 done; 2 bad input (one line on stderr naming the problem and the fix, nothing
-written); 130 interrupted (Ctrl-C; files are written whole or not at all).
+written); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM): files are written whole or not at
+all, and temporary files left by a killed run are swept by the next run that writes there.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import glob
 import math
 import os
 import shlex
@@ -40,26 +50,37 @@ if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
 EXPORT_FORMATS = ("json", "dot", "svg", "png", "btcpp-xml")
 EXPORT_SUFFIXES = {"json": (".json",), "dot": (".dot", ".gv"), "svg": (".svg",),
                    "png": (".png",), "btcpp-xml": (".xml",)}
-TREE_FORMAT = "ibt-tree/1"
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+MAX_BT_BYTES = 64 << 20  # a BT or XML file larger than this is refused (not read)
+STALE_TEMP_SECONDS = 30  # hidden temp files older than this, beside an output, are swept
 
 
 class UsageError(Exception):
     """Bad input found by the command line: exit code 2 and this one-line message."""
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised where the process is, so that it unwinds like Ctrl-C (exit 143)."""
+
+
 # ------------------------------------------------------------------------- input checks
-def _int_at_least(minimum: int, what: str) -> Callable[[str], int]:
-    """An argparse type: an integer >= ``minimum``."""
+def _int_at_least(minimum: int, what: str, maximum: int = 10**6) -> Callable[[str], int]:
+    """An argparse type: an integer in ``[minimum, maximum]``."""
 
     def parse(text: str) -> int:
         try:
-            value = int(text)
+            value = int(text) if len(text) <= 30 else None
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+            value = None
+        if value is None:
+            raise argparse.ArgumentTypeError(f"expected an integer ({what}), got {text!r:.40}")
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be at least {minimum} ({what}), got {value}")
+        if value > maximum:
+            raise argparse.ArgumentTypeError(f"must be at most {maximum:,} ({what}), got "
+                                             f"{text:.40}")
         return value
 
     return parse
@@ -71,14 +92,21 @@ def _seconds(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 (seconds), got {text}")
+    if not math.isfinite(value) or not 0 <= value <= 60:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds from 0 to 60, got "
+                                         f"{text:.40}")
     return value
 
 
 POSITIVE = _int_at_least(1, "a count")
-SEED = _int_at_least(0, "a seed")
-LEAVES = _int_at_least(2, "a tree")
+EPISODES = _int_at_least(1, "episodes", 1_000_000)
+SEED = _int_at_least(0, "a seed: 0 to 2**32 - 1", 2**32 - 1)
+LEAVES = _int_at_least(2, "leaves of a tree", 100_000)
+LABELS = _int_at_least(1, "expert labels", 10_000_000)
+ITERATIONS = _int_at_least(1, "iterations", 10_000)
+TIMESTEPS = _int_at_least(1, "timesteps", 10**10)
+REFINE_EPISODES = _int_at_least(1, "refinement episodes", 10_000_000)
+PORT = _int_at_least(1, "a TCP port", 65_535)
 
 
 def _writable_folder(folder: Path, what: str) -> None:
@@ -111,7 +139,36 @@ def check_output(path: str | Path, suffixes: Sequence[str], option: str = "-o") 
     _writable_folder(path.parent, what)
     if path.exists() and not os.access(path, os.W_OK):
         raise UsageError(f"{what} is read-only; choose another path")
+    sweep_temp_files(path)
     return path
+
+
+def sweep_temp_files(path: Path, age: float = STALE_TEMP_SECONDS) -> list[Path]:
+    """Remove the hidden temporary files a killed run left beside ``path`` (those of
+    :func:`ibt.files.atomic_target`, ``.<name>.XXXXXXXX<suffix>``, and write probes) that were
+    last written more than ``age`` seconds ago; returns them."""
+    import time
+
+    removed: list[Path] = []
+    try:
+        candidates = [*path.parent.glob(f".{glob_escape(path.name)}.*"),
+                      *path.parent.glob(".ibt-probe-*")]
+    except OSError:
+        return removed
+    for temp in candidates:
+        try:
+            if temp.is_file() and not temp.is_symlink() \
+                    and time.time() - temp.stat().st_mtime > age:
+                temp.unlink()
+                removed.append(temp)
+        except OSError:
+            continue
+    return removed
+
+
+def glob_escape(name: str) -> str:
+    """``name`` with glob's special characters taken literally."""
+    return glob.escape(name)
 
 
 def check_output_folder(path: str | Path, option: str) -> Path:
@@ -124,13 +181,28 @@ def check_output_folder(path: str | Path, option: str) -> Path:
 
 
 def check_input(path: str | Path, what: str, hint: str) -> Path:
-    """``path`` if it is an existing file, else a ``UsageError`` ending with ``hint``."""
+    """``path`` if it is an existing regular file, else a ``UsageError`` ending with ``hint``
+    (a device or a named pipe is refused: reading it would not end)."""
     path = Path(path)
     if path.is_dir():
         raise UsageError(f"{path} is a folder; pass the {what} itself")
     if not path.exists():
         raise UsageError(f"no {what} at {path}; {hint}")
+    if not path.is_file():
+        raise UsageError(f"{path} is not a regular file (a device, pipe or socket); pass the "
+                         f"{what} itself")
     return path
+
+
+def read_input(path: str | Path, what: str, hint: str, limit: int = MAX_BT_BYTES) -> bytes:
+    """The bytes of an input file, checked by :func:`check_input` and at most ``limit``."""
+    from ibt.distill.tree_file import read_regular_file
+
+    path = check_input(path, what, hint)
+    try:
+        return read_regular_file(path, limit, what)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
 
 
 def _again(args: argparse.Namespace, *extra: str) -> str:
@@ -139,66 +211,33 @@ def _again(args: argparse.Namespace, *extra: str) -> str:
 
 
 # ------------------------------------------------------------------------ tree files
-def save_tree_file(path: str | Path, tree: Any, task: Task | str, info: dict[str, Any]) -> Path:
-    """A decision tree with what it needs to be read again: the task, the names of the features
-    and actions it was fitted on, the modules that register the task's environment, run facts."""
-    from ibt.files import atomic_target
-    from ibt.tasks.catalogue import resolve_task
-    from ibt.tasks.task import Task
-
-    task = task if isinstance(task, Task) else resolve_task(task)
-    info = dict(info)
-    setup = [task.setup_module] if task.setup_module else []
-    modules = list(dict.fromkeys([*info.pop("env_modules", []), *setup]))
-    path = Path(path)
-    with atomic_target(path) as tmp:
-        import joblib
-
-        joblib.dump({"format": TREE_FORMAT, "tree": tree, "task": task.name,
-                     "gym_id": task.gym_id, "env_modules": modules,
-                     "feature_names": list(task.feature_names),
-                     "action_names": list(task.action_names), **info}, tmp)
-    return path
-
-
-def load_tree_file(path: str | Path) -> dict[str, Any]:
-    """A file of :func:`save_tree_file`, checked: a fitted tree whose feature count and actions
-    match the names stored beside it."""
-    from sklearn.tree import DecisionTreeClassifier
+def load_tree_file(path: str | Path, args: argparse.Namespace | None = None) -> dict[str, Any]:
+    """A tree file of :mod:`ibt.distill.tree_file`, checked; a pickle only with --trust-pickle."""
+    from ibt.distill.tree_file import TREE_SUFFIX
+    from ibt.distill.tree_file import load_tree_file as load
 
     hint = (f"make one with `python -m ibt distill CartPole-v1 ppo -o "
-            f"{shlex.quote(str(Path(path).with_suffix('.joblib')))}`")
+            f"{shlex.quote(str(Path(path).with_suffix(TREE_SUFFIX)))}`")
     path = check_input(path, "decision-tree file", hint)
-    not_ours = f"{path} is not a decision-tree file written by `python -m ibt distill`"
-    try:
-        import joblib
-
-        doc = joblib.load(path)
-    except Exception as err:  # joblib raises many kinds on a damaged file
-        raise UsageError(f"{not_ours} ({type(err).__name__})") from None
-    keys = ("tree", "task", "feature_names", "action_names")
-    if not isinstance(doc, dict) or any(k not in doc for k in keys):
-        raise UsageError(not_ours)
-    if doc.get("format", TREE_FORMAT) != TREE_FORMAT:
-        raise UsageError(f"{path} is a {doc['format']!r} file; this version reads {TREE_FORMAT}")
-    tree, names, actions = doc["tree"], doc["feature_names"], doc["action_names"]
-    if not isinstance(tree, DecisionTreeClassifier) or not hasattr(tree, "tree_"):
-        raise UsageError(f"{not_ours} (it holds no fitted decision tree)")
-    if tree.n_features_in_ != len(names) or not set(map(int, tree.classes_)) <= set(
-            range(len(actions))):
-        raise UsageError(f"{path} is inconsistent: its tree reads {tree.n_features_in_} features"
-                         f" and predicts {sorted(map(int, tree.classes_))}, but it names "
-                         f"{len(names)} features and {len(actions)} actions; distil it again")
-    return doc
+    return load(path, trust_pickle=bool(getattr(args, "trust_pickle", False)))
 
 
 def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) -> Task:
-    """The task a tree file was distilled on, with the names it was fitted on."""
+    """The task a tree file was distilled on, with the names it was fitted on.
+
+    A name of the form ``MODULE:EnvId`` in the file imports nothing: only ``--env-module`` on
+    the command line imports (a file must not choose the code that runs)."""
     from ibt.tasks.catalogue import resolve_task
 
     name = doc["task"]
+    module, colon, bare = name.rpartition(":")
+    if colon and module not in args.env_module:
+        retry = _again(args, "--env-module", module)
+        raise UsageError(f"{path} was distilled on {bare}, which the module {module} registers; "
+                         f"a tree file imports nothing: if you trust that module, run "
+                         f"`{retry}`")
     try:
-        task = resolve_task(name)
+        task = resolve_task(bare)
     except LookupError:
         modules = [m for m in doc.get("env_modules", []) if m not in args.env_module]
         if modules:
@@ -216,15 +255,32 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
     return task
 
 
-def _load_bt(path: str | Path):
-    from ibt.bt.json_io import load_json
-
+def _bt_hint(path: str | Path) -> str:
     bt_file = shlex.quote(str(Path(path).with_suffix(".json")))
-    path = check_input(path, "behavior tree", "make one with `python -m ibt distill CartPole-v1 "
-                       f"ppo -o tree.joblib` and `python -m ibt synthesize tree.joblib -o "
-                       f"{bt_file}`")
+    return ("make one with `python -m ibt distill CartPole-v1 ppo -o tree.json` and "
+            f"`python -m ibt synthesize tree.json -o {bt_file}`")
+
+
+def _read_json(path: str | Path, what: str, hint: str) -> Any:
+    """A JSON input file: regular, bounded, strict (no duplicate keys)."""
+    from ibt.distill.tree_file import parse_json
+
+    data = read_input(path, what, hint)
     try:
-        return load_json(path)
+        return parse_json(data, path, what)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+
+
+def _load_bt(path: str | Path, doc: Any = None):
+    from ibt.bt.model import BehaviorTree
+
+    if doc is None:
+        doc = _read_json(path, "behavior tree", _bt_hint(path))
+    try:
+        return BehaviorTree.from_dict(doc)
+    except RecursionError:
+        raise UsageError(f"{path} is nested too deeply to be a behavior tree") from None
     except ValueError as err:
         raise UsageError(f"{path} is not a valid behavior tree: {err}") from None
 
@@ -251,9 +307,28 @@ def _train(args: argparse.Namespace) -> int:
             raise UsageError(f"--refresh-before {stamp}: no such file; create it when a "
                              f"from-scratch run starts with `touch {shlex.quote(str(stamp))}`")
         since = stamp.stat().st_mtime
+    from ibt.experts.expert import expert_path
+    from ibt.tasks.catalogue import TASKS
+
+    asked = [(t, a) for t in (tasks or list(TASKS.values())) for a in algos]
+
+    def mtime(t: Task, a: str) -> int | None:
+        path = expert_path(t, a, root)
+        return path.stat().st_mtime_ns if path.exists() else None
+
+    before = {(t.name, a): mtime(t, a) for t, a in asked}
     manifest = train_missing(tasks or None, algos, refresh=args.refresh, seed=args.seed,
                              timesteps=args.timesteps, refresh_before=since, root=root)
-    print(manifest.to_string(index=False))
+    skipped = [f"{t.name}/{a}" for t, a in asked
+               if before[(t.name, a)] is not None and before[(t.name, a)] == mtime(t, a)]
+    if skipped:
+        print(f"skipped {len(skipped)} expert(s) already recorded in {root} (--refresh "
+              f"retrains them): {', '.join(skipped)}")
+    names = {t.name for t, _ in asked}
+    rows = manifest[manifest["task"].isin(names) & manifest["algo"].isin(algos)]
+    columns = [c for c in ("task", "algo", "timesteps", "mean_return", "meets_bar", "status")
+               if c in rows]  # the full manifest is in manifest.csv; this fits a terminal
+    print(rows[columns].to_string(index=False))
     return 0
 
 
@@ -271,11 +346,12 @@ def _random(args: argparse.Namespace) -> int:
 
 def _distill(args: argparse.Namespace) -> int:
     from ibt.distill.loop import DistillConfig, distill
+    from ibt.distill.tree_file import save_tree_file
     from ibt.experts.expert import load_expert
     from ibt.tasks.catalogue import resolve_task
 
     task = resolve_task(args.task)
-    out = check_output(args.output, (".joblib",))
+    out = check_output(args.output, (".json",))
     expert = load_expert(task, args.algo, args.checkpoint)
     overrides = {"n_iterations": args.iterations, "selection_episodes": args.selection_episodes}
     if args.labels is not None:
@@ -297,10 +373,11 @@ def _distill(args: argparse.Namespace) -> int:
 
 
 def _refine(args: argparse.Namespace) -> int:
+    from ibt.distill.tree_file import save_tree_file
     from ibt.refine.by_return import refine, task_config
 
-    out = check_output(args.output, (".joblib",))
-    doc = load_tree_file(args.tree)
+    out = check_output(args.output, (".json",))
+    doc = load_tree_file(args.tree, args)
     task = _tree_task(doc, args.tree, args)
     overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
     if args.episodes is not None:
@@ -316,7 +393,11 @@ def _refine(args: argparse.Namespace) -> int:
                                                     "config": record.config},
                                      "env_modules": args.env_module})
     before, after = record.selection_means[0], record.selection_means[record.best_index]
-    print(f"{task.name}: {record.candidates[0].n_leaves} -> {record.best.n_leaves} leaves, "
+    # refinement starts from the tree with same-action sibling leaves merged (it decides alike)
+    given, merged = int(doc["tree"].get_n_leaves()), record.candidates[0].n_leaves
+    start = (f"{given}" if given == merged
+             else f"{given} ({merged} once leaves that always decide alike are merged)")
+    print(f"{task.name}: {start} -> {record.best.n_leaves} leaves, "
           f"held-out return {before:.2f} -> {after:.2f} ({record.episodes} refinement "
           f"episodes, {record.cpu_seconds:.0f} s CPU); written to {out}")
     return 0
@@ -327,7 +408,7 @@ def _synthesize(args: argparse.Namespace) -> int:
     from ibt.synth.imitation import NotEquivalentError, imitation_bt
 
     out = check_output(args.output, (".json",))
-    doc = load_tree_file(args.tree)
+    doc = load_tree_file(args.tree, args)
     task = _tree_task(doc, args.tree, args)
     try:
         if args.method == "imitation-bt":  # the paper's construction takes its options
@@ -345,6 +426,24 @@ def _synthesize(args: argparse.Namespace) -> int:
     return 0
 
 
+def _convert_tree(args: argparse.Namespace) -> int:
+    from ibt.distill.tree_file import PICKLE_SUFFIXES, convert_tree_file
+
+    out = check_output(args.output, (".json",))
+    source = check_input(args.tree, "pickled decision-tree file", "pass the .joblib file to "
+                         "convert")
+    if source.suffix.lower() not in PICKLE_SUFFIXES:
+        raise UsageError(f"{source} is not a pickled tree file ({', '.join(PICKLE_SUFFIXES)}); "
+                         "JSON tree files need no conversion")
+    if not args.trust_pickle:
+        raise UsageError(f"reading {source} runs the code a pickle holds; if it comes from a "
+                         f"trusted source, run `{_again(args, '--trust-pickle')}`")
+    doc = convert_tree_file(source, out)
+    print(f"{source} ({doc['task']}, {doc['tree'].get_n_leaves()} leaves) converted; written "
+          f"to {out}")
+    return 0
+
+
 def _matching_tasks(bt: Any) -> list[str]:
     from ibt.tasks.catalogue import TASKS
 
@@ -353,11 +452,18 @@ def _matching_tasks(bt: Any) -> list[str]:
 
 
 def _load_policy(path: Path, args: argparse.Namespace):
+    from ibt.distill.tree_file import PICKLE_SUFFIXES, TREE_FORMAT
     from ibt.evaluate.policies import BTPolicy, TreePolicy
     from ibt.tasks.catalogue import resolve_task
 
-    if path.suffix == ".json":
-        bt = _load_bt(path)
+    doc = None
+    if path.suffix.lower() not in PICKLE_SUFFIXES:
+        if path.suffix.lower() != ".json" and not path.exists():
+            raise UsageError(f"{path}: expected a BT (.json), a decision-tree file (.json) or "
+                             f"an expert ({', '.join(ALGOS)})")
+        doc = _read_json(path, "BT or decision-tree file", _bt_hint(path))
+    if doc is not None and not (isinstance(doc, dict) and doc.get("format") == TREE_FORMAT):
+        bt = _load_bt(path, doc)
         if args.task is None:
             known = _matching_tasks(bt)
             if len(known) == 1:
@@ -375,10 +481,7 @@ def _load_policy(path: Path, args: argparse.Namespace):
                              f"{', '.join(task.feature_names)} and "
                              f"{', '.join(task.action_names)}; {fix}")
         return task, BTPolicy(task, bt)
-    if path.suffix != ".joblib" and not path.exists():
-        raise UsageError(f"{path}: expected a BT (.json), a decision-tree file (.joblib) or an "
-                         f"expert ({', '.join(ALGOS)})")
-    doc = load_tree_file(path)
+    doc = load_tree_file(path, args)
     task = _tree_task(doc, path, args)
     if args.task is not None and resolve_task(args.task).name != task.name:
         raise UsageError(f"{path} was distilled on {task.name}, not {args.task}; drop --task "
@@ -437,8 +540,9 @@ def _run_btcpp(args: argparse.Namespace) -> int:
     from ibt.export.engine import run_btcpp
     from ibt.tasks.catalogue import resolve_task
 
-    xml = check_input(args.xml, "BehaviorTree.CPP XML", "write one with `python -m ibt export "
-                      "BT.json --format btcpp-xml -o BT.xml`")
+    hint = "write one with `python -m ibt export BT.json --format btcpp-xml -o BT.xml`"
+    xml = check_input(args.xml, "BehaviorTree.CPP XML", hint)
+    read_input(xml, "BehaviorTree.CPP XML", hint)  # a regular file of bounded size
     run = run_btcpp(xml, resolve_task(args.task), args.episodes, args.groot_port,
                     args.step_delay)
     print(run.summary())
@@ -448,7 +552,67 @@ def _run_btcpp(args: argparse.Namespace) -> int:
     return 0 if run.ok else 1
 
 
+def _pipeline(args: argparse.Namespace) -> int:
+    from ibt.runs.recommend import recommend
+    from ibt.runs.recommend_files import write_outputs
+    from ibt.tasks.catalogue import resolve_task
+
+    out = check_output_folder(args.output, "-o")
+    task = resolve_task(args.task)
+    checkpoint = args.checkpoint
+    if checkpoint is None:
+        from ibt.experts.expert import expert_path
+
+        checkpoint = expert_path(task, args.algo)
+    check_input(checkpoint, "SB3 checkpoint", "pass your agent's zip with --checkpoint")
+    rec = recommend(task, args.algo, checkpoint, keep=args.keep, budget=args.budget,
+                    leaf_limits=args.leaves, seed=args.seed, episodes=args.episodes,
+                    cache_dir=args.cache_dir or Path(args.output) / "cache",
+                    progress=not args.quiet, argv=args.argv, env_modules=args.env_module)
+    write_outputs(rec, out)
+    verdict = "meets" if rec.met else "MISSES"
+    print(f"{task.name}/{args.algo}: recommended a {rec.chosen.bt_nodes}-node BT keeping "
+          f"{rec.retention:.1f} % of the agent (random-normalised, {rec.episodes} held-out "
+          f"episodes); {verdict} the {100 * args.keep:.0f} % target; see {out / 'report.md'}")
+    return 0
+
+
+def _keep(text: str) -> float:
+    """An argparse type: a share in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a share such as 0.95, got {text!r}") from None
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1] (a share of the agent), got {text}")
+    return value
+
+
+def _budget(text: str) -> Any:
+    from ibt.runs.recommend import parse_budget
+
+    try:
+        return parse_budget(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).split(": ", 1)[-1]) from None
+
+
+def _leaf_limits(text: str) -> tuple[int, ...]:
+    """An argparse type: comma-separated leaf limits, each at least 2."""
+    try:
+        values = tuple(sorted({int(v) for v in text.split(",") if v.strip()}))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected leaf limits such as 4,8,16,32, got "
+                                         f"{text!r}") from None
+    if not values or values[0] < 2:
+        raise argparse.ArgumentTypeError(f"leaf limits must be at least 2, got {text!r}")
+    return values
+
+
 # ----------------------------------------------------------------------------- parser
+TRUST_HELP = ("read a pickled (.joblib) tree file of earlier versions: it runs the code it "
+              "holds, so only for files from a trusted source (better: convert-tree it once)")
+
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors that name the help command."""
 
@@ -477,50 +641,55 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--refresh-before", metavar="FILE",
                        help="retrain experts older than FILE (a resumable --refresh)")
     train.add_argument("--seed", type=SEED, default=0)
-    train.add_argument("--timesteps", type=POSITIVE, default=None, help="override the table")
+    train.add_argument("--timesteps", type=TIMESTEPS, default=None, help="override the table")
     train.add_argument("--experts-dir", metavar="DIR",
                        help="where checkpoints and manifest.csv go (default: data/experts)")
     train.set_defaults(func=_train)
 
     rnd = command("random-baselines", help="write data/experts/random.csv")
     rnd.add_argument("tasks", nargs="*", metavar="TASK")
-    rnd.add_argument("--episodes", type=POSITIVE, default=100)
+    rnd.add_argument("--episodes", type=EPISODES, default=100)
     rnd.add_argument("-o", "--output", help="CSV to write (default: data/experts/random.csv)")
     rnd.set_defaults(func=_random)
 
     dist = command("distill", help="distil an expert into a decision tree")
     dist.add_argument("task", help="a registered task, any gymnasium env id, or MODULE:EnvId")
     dist.add_argument("algo", choices=ALGOS)
-    dist.add_argument("-o", "--output", required=True, help="decision-tree file (.joblib)")
-    dist.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert)")
+    dist.add_argument("-o", "--output", required=True, help="decision-tree file (.json)")
+    dist.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert); a "
+                      "checkpoint is code (pickles): use only ones from a trusted source")
     dist.add_argument("--method", default="imitation-bt",
                       choices=("bc", "dagger", "viper", "imitation-bt"))
     dist.add_argument("--seed", type=SEED, default=0)
-    dist.add_argument("--iterations", type=POSITIVE, default=50)
-    dist.add_argument("--selection-episodes", type=POSITIVE, default=20)
-    dist.add_argument("--labels", type=POSITIVE, default=None,
-                      help="expert labels per iteration (default: the task's budget)")
+    dist.add_argument("--iterations", type=ITERATIONS, default=50)
+    dist.add_argument("--selection-episodes", type=EPISODES, default=20)
+    dist.add_argument("--labels", type=LABELS, default=None,
+                      help="at least this many new expert labels per iteration: whole episodes "
+                      "are collected until that many steps have been taken, so an iteration "
+                      "adds a little more (default: the task's budget)")
     dist.add_argument("--max-leaf-nodes", type=LEAVES, default=None,
-                      help="leaf limit of the tree (default: the task's budget in "
-                      f"ibt.distill.loop.TASK_BUDGETS; {DEFAULT_MAX_LEAF_NODES} for other tasks)")
+                      help="leaf limit of the tree (default: the task's budget in its "
+                      f"catalogue entry, Task.budget; {DEFAULT_MAX_LEAF_NODES} for other "
+                      "tasks)")
     dist.add_argument("--quiet", action="store_true", help="no progress bar")
     dist.set_defaults(func=_distill)
 
     ref = command("refine", help="raise a decision tree's return by refinement (thresholds "
                   "by CMA-ES, leaf actions, pruning), optionally to a leaf limit")
-    ref.add_argument("tree", help="decision-tree file from `distill` (or `refine`)")
-    ref.add_argument("-o", "--output", required=True, help="refined decision-tree file (.joblib)")
-    ref.add_argument("--max-leaves", type=POSITIVE, default=None,
+    ref.add_argument("tree", help="decision-tree file (.json) from `distill` (or `refine`)")
+    ref.add_argument("-o", "--output", required=True, help="refined decision-tree file (.json)")
+    ref.add_argument("--max-leaves", type=LEAVES, default=None,
                      help="prune to at most this many leaves (default: no forced pruning)")
-    ref.add_argument("--episodes", type=POSITIVE, default=None,
+    ref.add_argument("--episodes", type=REFINE_EPISODES, default=None,
                      help="refinement budget in episodes (default: the task's, "
-                     "ibt.refine.by_return.REFINE_BUDGETS; 20,000 for other tasks)")
+                     "its catalogue entry, Task.refine; 20,000 for other tasks)")
     ref.add_argument("--seed", type=SEED, default=0)
     ref.add_argument("--quiet", action="store_true", help="no progress bar")
+    ref.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
     ref.set_defaults(func=_refine)
 
     syn = command("synthesize", help="turn a decision tree into a verified BT (JSON)")
-    syn.add_argument("tree", help="decision-tree file from `distill`")
+    syn.add_argument("tree", help="decision-tree file (.json) from `distill`")
     syn.add_argument("-o", "--output", required=True, help="BT JSON file")
     syn.add_argument("--method", default="imitation-bt", choices=tuple(SYNTHESISERS),
                      help="a registered synthesiser (ibt.synth.registry); default imitation-bt")
@@ -528,15 +697,26 @@ def build_parser() -> argparse.ArgumentParser:
                      choices=("max_complexity", "most_frequent", "smallest_tree"))
     syn.add_argument("--dont-cares", action="store_true",
                      help="give Espresso the impossible threshold combinations as don't-cares")
+    syn.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
     syn.set_defaults(func=_synthesize)
 
-    ev = command("evaluate", help="returns of a BT (.json), a tree (.joblib) or an "
+    ev = command("evaluate", help="returns of a BT (.json), a decision tree (.json) or an "
                  "expert (dqn/ppo/a2c) on the fixed evaluation episodes")
     ev.add_argument("policy", help="BT JSON, decision-tree file, or dqn|ppo|a2c")
     ev.add_argument("--task", help="task (required for BT files and experts)")
-    ev.add_argument("--checkpoint", help="SB3 checkpoint for an expert")
-    ev.add_argument("--episodes", type=POSITIVE, default=100)
+    ev.add_argument("--checkpoint", help="SB3 checkpoint for an expert; a checkpoint is code "
+                    "(pickles): use only ones from a trusted source")
+    ev.add_argument("--episodes", type=EPISODES, default=100)
+    ev.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
     ev.set_defaults(func=_evaluate)
+
+    conv = command("convert-tree", help="convert a decision-tree file of earlier versions "
+                   "(.joblib, a pickle) into the JSON format")
+    conv.add_argument("tree", help="the .joblib file (it runs code when read: trusted only)")
+    conv.add_argument("-o", "--output", required=True, help="decision-tree file (.json)")
+    conv.add_argument("--trust-pickle", action="store_true",
+                      help="required: you trust the file's source (unpickling runs its code)")
+    conv.set_defaults(func=_convert_tree)
 
     ex = command("export", help="write a BT as json, dot, svg, png or BehaviorTree.CPP v4 XML")
     ex.add_argument("bt", help="BT JSON file")
@@ -553,13 +733,34 @@ def build_parser() -> argparse.ArgumentParser:
                  "(behaviortreepy) ticking, beside the Python BT on the same seeds")
     rb.add_argument("xml", help="XML from `export --format btcpp-xml` (portable flavour)")
     rb.add_argument("--task", required=True, help="the task whose BT the XML is")
-    rb.add_argument("--episodes", type=POSITIVE, default=10)
-    rb.add_argument("--groot-port", type=POSITIVE, default=None, metavar="PORT",
+    rb.add_argument("--episodes", type=EPISODES, default=10)
+    rb.add_argument("--groot-port", type=PORT, default=None, metavar="PORT",
                     help="publish the tree to Groot2 on this port while it runs "
                     "(behaviortreepy's Groot2Publisher; connect Groot2 to it)")
     rb.add_argument("--step-delay", type=_seconds, default=0.0, metavar="SECONDS",
                     help="sleep between steps, to watch a run in Groot2")
     rb.set_defaults(func=_run_btcpp)
+
+    pl = command("pipeline", help="from an agent to a recommended BT: distil at several leaf "
+                 "limits, refine, synthesise every verified BT, evaluate on held-out episodes, "
+                 "and write bt.json, bt.xml, bt.png, front.png and report.md")
+    pl.add_argument("task", help="a registered task, any gymnasium env id, or MODULE:EnvId")
+    pl.add_argument("algo", choices=ALGOS)
+    pl.add_argument("-o", "--output", required=True, metavar="DIR", help="folder to write")
+    pl.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert)")
+    pl.add_argument("--keep", type=_keep, default=0.95,
+                    help="target share of the agent's random-normalised return (default 0.95)")
+    pl.add_argument("--budget", type=_budget, default="1x",
+                    help="smoke (seconds), a scale of the default budget such as 2x, or "
+                    "refinement episodes per leaf limit such as 40000 (default 1x)")
+    pl.add_argument("--leaves", type=_leaf_limits, default=(4, 8, 16, 32), metavar="L,L,...",
+                    help="leaf limits to distil at (default 4,8,16,32)")
+    pl.add_argument("--episodes", type=POSITIVE, default=None,
+                    help="held-out episodes per evaluation (default: 100; 5 with --budget smoke)")
+    pl.add_argument("--seed", type=SEED, default=0)
+    pl.add_argument("--cache-dir", metavar="DIR", help="cache of every step (default: DIR/cache)")
+    pl.add_argument("--quiet", action="store_true", help="no progress bars")
+    pl.set_defaults(func=_pipeline)
     return parser
 
 
@@ -573,25 +774,66 @@ def _one_line(err: BaseException) -> str:
     return " ".join(text.split())
 
 
+def _import_env_module(module: str) -> None:
+    """``--env-module``: imported; its ``sys.exit`` is bad input too, not an exit of ours."""
+    from ibt.tasks.catalogue import import_env_module
+
+    try:
+        import_env_module(module)
+    except SystemExit as stop:
+        raise UsageError(f"the environment module {module!r} called sys.exit({stop.code!r}) "
+                         "while imported; a module given to --env-module must only register "
+                         "environments") from None
+
+
+def _terminate(signum: int, frame: Any) -> None:
+    raise Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Any:
+    """While active (main thread only), SIGTERM raises :class:`Terminated` where the process is:
+    ``finally`` blocks run, so temporary files are removed as on Ctrl-C."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand: 0 when done, 2 on bad input (one line on stderr, nothing written),
-    130 when interrupted (Ctrl-C)."""
+    130 when interrupted (Ctrl-C), 143 when terminated (SIGTERM)."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        with _sigterm_unwinds():
+            return _main(argv)
+    except KeyboardInterrupt:
+        print("interrupted: stopped before the next write (files are written whole or not at "
+              "all)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Terminated:
+        print("terminated (SIGTERM): stopped before the next write (files are written whole or "
+              "not at all)", file=sys.stderr)
+        return EXIT_TERMINATED
+
+
+def _main(argv: list[str]) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as stop:  # --help (0) or a usage error, already printed as one line (2)
         return stop.code if isinstance(stop.code, int) else EXIT_BAD_INPUT
     args.argv = argv
     try:
-        from ibt.tasks.catalogue import import_env_module
-
         for module in args.env_module:
-            import_env_module(module)
+            _import_env_module(module)
         return int(args.func(args))
-    except KeyboardInterrupt:
-        print("interrupted: stopped before the next write (files are written whole or not at "
-              "all)", file=sys.stderr)
-        return EXIT_INTERRUPTED
     except (UsageError, KeyError, ValueError, LookupError, RuntimeError, OSError) as err:
         print(f"error: {_one_line(err)}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -58,3 +58,30 @@ def test_highway_frames_are_rendered_not_black():
 def test_an_unknown_clip_is_a_clear_error(capsys):
     assert main(["Pong-v5"]) == 2
     assert "no clip for 'Pong-v5'" in capsys.readouterr().err
+
+
+def test_film_names_its_bt_file_and_digest_in_the_gif(tmp_path):
+    from ibt.views.animate import file_sha256, gif_source
+
+    task = replace(get_task("FrozenLake-v1"), clip=Clip(20, 1, 200))
+    facts = film(task, tmp_path)
+    path, digest = gif_source(facts["path"])
+    assert path == f"trees/FrozenLake-v1/{facts['expert']}/imitation-bt.json"
+    assert digest == file_sha256(DATA_DIR / path)
+
+
+@pytest.mark.parametrize("task", [t.name for t in filmed_tasks()])
+def test_every_committed_gif_was_drawn_from_its_committed_bt(task):
+    # Expect: the GIF's comment names the BT it shows; a BT changed since (`make figures` wrote a
+    # new data/trees/...) fails here until `make animations` draws the GIF again
+    from ibt.paths import FIGURES_DIR
+    from ibt.views.animate import file_sha256, gif_source
+
+    gif = FIGURES_DIR / "anim" / f"{task}.gif"
+    assert gif.exists(), f"{gif} is missing: run `make animations`"
+    source = gif_source(gif)
+    assert source is not None, f"{gif} does not name its BT: run `make animations`"
+    path, digest = source
+    assert path == f"trees/{task}/{best_expert(get_task(task))}/imitation-bt.json"
+    assert digest == file_sha256(DATA_DIR / path), (
+        f"{gif} shows an older {path}: run `make animations`")

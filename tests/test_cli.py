@@ -24,7 +24,7 @@ TINY = ["--iterations", "2", "--labels", "200", "--selection-episodes", "2", "--
 
 @pytest.fixture(scope="module")
 def tree_file(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cli") / "tree.joblib"
+    out = tmp_path_factory.mktemp("cli") / "tree.json"
     assert main(["distill", "CartPole-v1", "ppo", "-o", str(out), *TINY]) == 0
     return out
 
@@ -50,12 +50,12 @@ def test_distill_synthesize_evaluate_export(tree_file, tmp_path, capsys):
 
 def test_distill_accepts_a_plain_gymnasium_id_with_a_checkpoint(tmp_path, capsys):
     # CartPole-v0 is not a registered task: features become x0..x3
-    out = tmp_path / "v0.joblib"
+    out = tmp_path / "v0.json"
     code = main(["distill", "CartPole-v0", "ppo", "-o", str(out), "--checkpoint",
                  str(expert_path(get_task("CartPole-v1"), "ppo")), *TINY])
     assert code == 0, capsys.readouterr().err
-    assert main(["synthesize", str(out), "-o", str(tmp_path / "v0.json")]) == 0
-    assert json.loads((tmp_path / "v0.json").read_text())["feature_names"][0] == "x0"
+    assert main(["synthesize", str(out), "-o", str(tmp_path / "v0_bt.json")]) == 0
+    assert json.loads((tmp_path / "v0_bt.json").read_text())["feature_names"][0] == "x0"
 
 
 def test_help_lists_every_subcommand_and_the_default_leaf_limit(capsys):
@@ -114,7 +114,7 @@ def _run(hint: list[str]) -> None:
 
 
 def test_missing_files_hint_commands_that_make_them(tmp_path, capsys, monkeypatch):
-    tree, bt = tmp_path / "tree.joblib", tmp_path / "bt.json"
+    tree, bt = tmp_path / "tree.json", tmp_path / "bt.json"
     for hint in _fails_with_hints(["synthesize", str(tree), "-o", str(bt)], capsys):
         _run(hint)
     assert main(["synthesize", str(tree), "-o", str(bt)]) == 0
@@ -124,7 +124,7 @@ def test_missing_files_hint_commands_that_make_them(tmp_path, capsys, monkeypatc
                               capsys)
     assert [h[0] for h in hints] == ["distill", "synthesize"]
     (tmp_path / "made").mkdir()
-    monkeypatch.chdir(tmp_path / "made")  # the hints name tree.joblib in the working folder
+    monkeypatch.chdir(tmp_path / "made")  # the hints name tree.json in the working folder
     for hint in hints:
         _run(hint)
     assert main(["export", str(with_bt), "--format", "btcpp-xml", "-o", str(xml)]) == 0
@@ -145,7 +145,7 @@ def test_checkpoint_hints_train_what_is_missing(tmp_path, capsys, monkeypatch):
     # a checkpoint in an experts folder's layout: the hint trains into that folder
     missing = tmp_path / "experts" / "CartPole-v1" / "ppo.zip"
     distill = ["distill", "CartPole-v1", "ppo", "--checkpoint", str(missing), "-o",
-               str(tmp_path / "t.joblib"), *CHEAP["distill"]]
+               str(tmp_path / "t.json"), *CHEAP["distill"]]
     (hint,) = _fails_with_hints(distill, capsys)
     assert hint[:4] == ["train", "CartPole-v1", "--algo", "ppo"]
     _run(hint)
@@ -157,7 +157,7 @@ def test_checkpoint_hints_train_what_is_missing(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(ibt.experts.expert, "DATA_DIR", tmp_path / "data")
     monkeypatch.setattr(ibt.paths, "DATA_DIR", tmp_path / "data")
-    default = ["distill", "CartPole-v1", "ppo", "-o", str(tmp_path / "d.joblib"),
+    default = ["distill", "CartPole-v1", "ppo", "-o", str(tmp_path / "d.json"),
                *CHEAP["distill"]]
     (hint,) = _fails_with_hints(default, capsys)
     assert hint == ["train", "CartPole-v1", "--algo", "ppo"]
@@ -168,7 +168,7 @@ def test_checkpoint_hints_train_what_is_missing(tmp_path, capsys, monkeypatch):
 
 def test_a_checkpoint_of_another_algorithm_says_which(tmp_path, capsys):
     argv = ["distill", "CartPole-v1", "ppo", "--checkpoint",
-            str(expert_path(get_task("CartPole-v1"), "dqn")), "-o", str(tmp_path / "t.joblib"),
+            str(expert_path(get_task("CartPole-v1"), "dqn")), "-o", str(tmp_path / "t.json"),
             *CHEAP["distill"]]
     assert main(argv) == 2
     assert "pass dqn as the algorithm" in capsys.readouterr().err
@@ -218,7 +218,7 @@ def test_ctrl_c_prints_one_line_exits_130_and_leaves_nothing(tmp_path):
     out.mkdir()
     log = tmp_path / "stderr.txt"
     command = [sys.executable, "-m", "ibt", "distill", "CartPole-v1", "ppo", "-o",
-               str(out / "tree.joblib"), "--iterations", "500", "--labels", "200",
+               str(out / "tree.json"), "--iterations", "500", "--labels", "200",
                "--selection-episodes", "1"]
     with log.open("w") as err:
         proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err, cwd=tmp_path)

@@ -227,14 +227,15 @@ def test_time_limit_holds_on_the_largest_committed_trees(task, algo, seed):
 
 def test_cli_synthesizes_a_decision_list_bt(tmp_path, capsys):
     import ibt
-    from ibt.cli import main, save_tree_file
+    from ibt.cli import main
+    from ibt.distill.tree_file import save_tree_file
 
     task = ibt.get_task("MountainCar-v0")
     rng = np.random.default_rng(0)
     x = task.sample_features(800, rng)
     y = np.where(x[:, 0] < -0.9, 1, (x[:, 1] > 0).astype(int) * 2)  # left, none, right
     tree = DecisionTreeClassifier(max_leaf_nodes=6, random_state=0).fit(x, y)
-    tree_file = save_tree_file(tmp_path / "tree.joblib", tree, task, {})
+    tree_file = save_tree_file(tmp_path / "tree.json", tree, task, {})
     out = tmp_path / "dl.json"
     assert main(["synthesize", str(tree_file), "-o", str(out), "--method", "decision-list"]) == 0
     assert "decision-list:" in capsys.readouterr().out

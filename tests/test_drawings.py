@@ -209,7 +209,7 @@ def test_excluded_experts_are_marked_and_error_bars_named():
 
     fig = plots.retention_grid(_summary([50, 90], [40, 80], [60, 95], {0: "excluded"}))
     texts = [t.get_text() for t in fig.findobj(matplotlib.text.Text)]
-    assert "expert excluded" in texts
+    assert "expert\nexcluded" in texts
     assert any("error bars: range over 3 seeds" in t for t in texts)
     matplotlib.pyplot.close(fig)
 
@@ -234,4 +234,46 @@ def test_saved_figures_are_stamped(tmp_path):
     png = plots.save_figure(fig, tmp_path / "lake", formats=("png",))[0]
     reading = measure(png)
     assert reading.kind == "plot" and reading.font_pt == 10 and reading.problems() == []
+    matplotlib.pyplot.close(fig)
+
+
+@pytest.mark.parametrize("figure", ["retention_grid", "node_counts"])
+def test_status_labels_of_neighbouring_tasks_never_overlap(figure):
+    import itertools
+
+    # Expect: eight tasks (the catalogue's count), every other expert marked; no two labels'
+    # boxes intersect, and each stays inside its task's band
+    from ibt.report import plots
+
+    statuses = {k: ("excluded", "constant-action")[k % 2] for k in range(8)}
+    frame = _summary([50.0] * 8, [40.0] * 8, [60.0] * 8, statuses)
+    if figure == "node_counts":
+        frame = frame.rename(columns={"retention_norm": "nodes"})
+    fig = getattr(plots, figure)(frame)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    notes = set(plots.STATUS_NOTE.values())
+    boxes = [t.get_window_extent(renderer) for t in fig.findobj(matplotlib.text.Text)
+             if t.get_text() in notes]
+    assert len(boxes) == 8
+    for a, b in itertools.pairwise(boxes):
+        assert a.x1 < b.x0, "status labels overlap"
+    ax = fig.axes[0]
+    band = ax.transData.transform([(0.52, 0), (1.48, 0)])[:, 0]  # task 1's band in pixels
+    assert band[0] <= boxes[1].x0 and boxes[1].x1 <= band[1]
+    matplotlib.pyplot.close(fig)
+
+
+def test_every_front_panel_names_its_expert():
+    from ibt.report import plots
+
+    means = pd.DataFrame({"task": ["A", "A", "B"], "expert": ["dqn", "dqn", "ppo"],
+                          "method": ["imitation-bt"] * 3, "bt_nodes": [5, 9, 7],
+                          "retention_norm": [90, 95, 80], "low": [88, 94, 70],
+                          "high": [92, 96, 85]})
+    points = means[["task", "method", "bt_nodes", "retention_norm"]]
+    anchors = pd.DataFrame(columns=["source", "task", "tree_nodes", "retention_norm"])
+    fig = plots.size_retention_front(points, means, anchors)
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == ["A, DQN expert", "B, PPO expert"]
     matplotlib.pyplot.close(fig)

@@ -16,10 +16,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import joblib
 import pytest
 
 from ibt.cli import main
+from ibt.distill.tree_file import load_tree_file
 from ibt.tasks.catalogue import TASKS
 from ibt.tasks.settings import DEFAULT_MAX_LEAF_NODES
 
@@ -97,11 +97,11 @@ def _png_size(path: Path) -> tuple[int, int]:
 
 def test_own_environment_distils_synthesises_evaluates_and_exports(user, tmp_path, capsys):
     env = ["--env-module", "ibt_user_corridor"]
-    tree, bt = tmp_path / "tree.joblib", tmp_path / "bt.json"
+    tree, bt = tmp_path / "tree.json", tmp_path / "bt.json"
     assert main(["distill", "Corridor-v0", "ppo", "--checkpoint", str(user / "ppo.zip"),
                  "-o", str(tree), *TINY, *env]) == 0
     assert f"of at most {DEFAULT_MAX_LEAF_NODES}" in capsys.readouterr().out
-    doc = joblib.load(tree)
+    doc = load_tree_file(tree)
     assert doc["task"] == "Corridor-v0" and doc["env_modules"] == ["ibt_user_corridor"]
     assert doc["tree"].get_n_leaves() <= DEFAULT_MAX_LEAF_NODES  # a readable tree by default
     assert main(["synthesize", str(tree), "-o", str(bt), *env]) == 0
@@ -120,7 +120,7 @@ def test_own_environment_distils_synthesises_evaluates_and_exports(user, tmp_pat
 
 def test_a_registered_task_gives_readable_names(user, tmp_path):
     env = ["--env-module", "ibt_user_corridor_named"]
-    tree, bt = tmp_path / "tree.joblib", tmp_path / "bt.json"
+    tree, bt = tmp_path / "tree.json", tmp_path / "bt.json"
     assert main(["distill", "NamedCorridor-v0", "ppo", "--checkpoint", str(user / "ppo.zip"),
                  "-o", str(tree), *TINY, *env]) == 0
     assert main(["synthesize", str(tree), "-o", str(bt), *env]) == 0
@@ -130,15 +130,15 @@ def test_a_registered_task_gives_readable_names(user, tmp_path):
 
 
 def test_gymnasiums_module_colon_id_form(user, tmp_path):
-    tree = tmp_path / "tree.joblib"
+    tree = tmp_path / "tree.json"
     assert main(["distill", "ibt_user_corridor:Corridor-v0", "ppo", "--checkpoint",
                  str(user / "ppo.zip"), "-o", str(tree), *TINY]) == 0
-    assert joblib.load(tree)["env_modules"] == ["ibt_user_corridor"]
+    assert load_tree_file(tree)["env_modules"] == ["ibt_user_corridor"]
 
 
 def test_a_fresh_process_is_told_the_missing_env_module_and_the_hint_works(user, tmp_path):
     # Expect: without --env-module, synthesize fails with a command that works
-    tree = tmp_path / "tree.joblib"
+    tree = tmp_path / "tree.json"
     assert main(["distill", "Corridor-v0", "ppo", "--checkpoint", str(user / "ppo.zip"),
                  "-o", str(tree), *TINY, "--env-module", "ibt_user_corridor"]) == 0
     environ = {**os.environ, "PYTHONPATH": str(user)}
@@ -159,7 +159,8 @@ def test_a_fresh_process_is_told_the_missing_env_module_and_the_hint_works(user,
 def test_the_readmes_own_environment_commands_work(user, tmp_path, monkeypatch):
     readme = (Path(__file__).parents[1] / "README.md").read_text()
     section = readme.split("### Distil your own agent", 1)[1]
-    block = section.split("```bash", 1)[1].split("```", 1)[0]
+    blocks = [b.split("```", 1)[0] for b in section.split("```bash")[1:]]
+    block = next(b for b in blocks if " distill " in b)  # the single steps
     commands = [line.split("#")[0].strip() for line in block.strip().splitlines()]
     assert len(commands) >= 4 and all(c.startswith("python -m ibt ") for c in commands)
     monkeypatch.chdir(tmp_path)
@@ -188,7 +189,7 @@ def test_a_trained_expert_of_the_users_environment_keeps_its_return_as_a_bt(user
     model.learn(20_000)
     model.save(checkpoint)
     env = ["--env-module", "ibt_user_corridor"]
-    tree, bt = tmp_path / "tree.joblib", tmp_path / "bt.json"
+    tree, bt = tmp_path / "tree.json", tmp_path / "bt.json"
     assert main(["distill", "Corridor-v0", "ppo", "--checkpoint", str(checkpoint), "-o",
                  str(tree), "--iterations", "5", "--quiet", *env]) == 0
     assert main(["synthesize", str(tree), "-o", str(bt), *env]) == 0

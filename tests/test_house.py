@@ -108,14 +108,15 @@ def _small_tree(task: Task) -> DecisionTreeClassifier:
 
 def test_a_registered_synthesiser_reaches_the_cli_the_grid_and_the_front(
         toy_synthesiser, tmp_path, capsys):
-    from ibt.cli import build_parser, main, save_tree_file
+    from ibt.cli import build_parser, main
+    from ibt.distill.tree_file import save_tree_file
     from ibt.runs import front, grid
 
     task = ibt.get_task("CartPole-v1")
     assert get_synthesiser("tree-shaped") is toy_synthesiser
     # the CLI offers it and writes its verified BT
     assert "tree-shaped" in build_parser().format_help() or main(["synthesize", "--help"]) == 0
-    tree_file = save_tree_file(tmp_path / "tree.joblib", _small_tree(task), task, {})
+    tree_file = save_tree_file(tmp_path / "tree.json", _small_tree(task), task, {})
     assert main(["synthesize", str(tree_file), "--method", "tree-shaped",
                  "-o", str(tmp_path / "bt.json")]) == 0
     assert "tree-shaped" in capsys.readouterr().out

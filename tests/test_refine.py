@@ -122,17 +122,19 @@ def test_bad_refine_configs_are_refused(bad):
 
 
 def test_cli_refines_a_tree_file_to_a_leaf_limit(tmp_path, capsys):
-    from ibt.cli import load_tree_file, main, save_tree_file
+    from ibt.cli import main
+    from ibt.distill.tree_file import load_tree_file, save_tree_file
+    from ibt.tasks.catalogue import get_task
 
-    source = save_tree_file(tmp_path / "tree.joblib", _cartpole_tree(), "CartPole-v1",
+    source = save_tree_file(tmp_path / "tree.json", _cartpole_tree(), get_task("CartPole-v1"),
                             {"algo": "dqn"})
-    out = tmp_path / "small.joblib"
+    out = tmp_path / "small.json"
     assert main(["refine", str(source), "-o", str(out), "--max-leaves", "2",
                  "--episodes", "300", "--quiet"]) == 0
     doc = load_tree_file(out)
     assert doc["tree"].get_n_leaves() <= 2 and doc["refined_from"] == str(source)
     assert "2 leaves" in capsys.readouterr().out or doc["tree"].get_n_leaves() == 1
     # a bad budget is refused before any work, and nothing is written
-    again = tmp_path / "again.joblib"
+    again = tmp_path / "again.json"
     assert main(["refine", str(source), "-o", str(again), "--episodes", "0"]) == 2
     assert not again.exists()

@@ -3,6 +3,21 @@ vectorised NumPy pass over many states) and ``to_py_trees`` (the reference libra
 
 Comparisons are made in double precision on observations cast to float32 first, exactly as
 scikit-learn's trees decide (see :mod:`ibt.bt.model`).
+
+**NaN and infinity have one meaning: they are refused.** Every executor reads observations
+through :func:`as_features`, which raises :class:`NonFiniteObservation` (a ``ValueError``
+naming the row and feature) when a value is NaN or infinite after the float32 cast (a finite
+double beyond float32's range becomes infinite there). The same function is the input of the
+compiled decision tree (:class:`ibt.evaluate.policies.CompiledTree`), of ``tick``,
+``decide_batch`` and the py_trees executor here, and of the BehaviorTree.CPP engine
+(:mod:`ibt.export.engine`); the verifier (:func:`ibt.synth.imitation.verify`) checks BTs on
+finite states only. Why refuse rather than route: a NaN comparison is false, so ``x <= t`` and
+``x > t`` both fail and a BT would reach no action where a tree goes right; any routing rule
+would have to be copied exactly into the tree, every BT executor, the C++ ScriptConditions and
+the coverage proof, while scikit-learn's own ``predict`` routes NaN by training-sample counts
+and rejects infinity. A sensor that returns NaN is a fault to report, not a state to decide:
+refusing it gives one clear error everywhere, and a BT that passes ``validate()`` then never
+returns "no action".
 """
 
 from __future__ import annotations
@@ -25,15 +40,32 @@ from ibt.bt.model import (
 )
 
 
-def as_features(x: np.ndarray) -> np.ndarray:
-    """Observations as the trees compare them: float32 values widened to float64."""
-    return np.asarray(x, dtype=np.float32).astype(np.float64)
+class NonFiniteObservation(ValueError):
+    """An observation holding NaN or infinity (after the float32 cast): refused everywhere."""
 
 
-def decide_batch(root: Node, features: np.ndarray) -> np.ndarray:
+def as_features(x: np.ndarray, *, finite: bool = True) -> np.ndarray:
+    """Observations as the trees compare them: float32 values widened to float64; NaN and
+    infinity refused (:class:`NonFiniteObservation`) unless ``finite=False`` (for proofs that
+    reason about unbounded regions, never for observations)."""
+    with np.errstate(over="ignore"):  # a double beyond float32's range becomes inf: refused
+        out = np.asarray(x, dtype=np.float32).astype(np.float64)
+    if finite and not np.isfinite(out).all():
+        bad = np.argwhere(~np.isfinite(np.atleast_1d(out)))[0]
+        where = f"feature {bad[-1]}" + (f" of row {bad[0]}" if bad.size > 1 else "")
+        value = np.atleast_1d(out)[tuple(bad)]
+        raise NonFiniteObservation(
+            f"an observation holds {value} at {where} (after the float32 cast every executor "
+            "makes); NaN and infinity have no decision: fix or filter the sensor that produced "
+            "it")
+    return out
+
+
+def decide_batch(root: Node, features: np.ndarray, *, finite: bool = True) -> np.ndarray:
     """Vectorised tick of a batch ``(n, n_features)``; ``NO_DECISION`` where no action was
-    reached (:meth:`BehaviorTree.validate` proves that this never happens)."""
-    x = as_features(features)
+    reached (:meth:`BehaviorTree.validate` proves that this never happens on finite states;
+    non-finite ones are refused unless ``finite=False``)."""
+    x = as_features(features, finite=finite)
     if x.ndim != 2:
         raise ValueError(f"decide_batch takes a batch of shape (n, n_features), got shape "
                          f"{x.shape}; for one state pass state[None]")

@@ -31,6 +31,8 @@ from typing import Any, Union
 import numpy as np
 
 OPS = ("<=", ">")
+MAX_DEPTH = 100  # levels below the root a BT may have (the committed ones have at most 7)
+MAX_NODES = 100_000  # nodes a BT may have (the committed ones have at most 313)
 NODE_TYPES = ("selector", "sequence", "fallback", "inverter", "condition", "action")
 NO_DECISION = -1
 
@@ -246,6 +248,7 @@ class BehaviorTree:
         together cover every state; a BT for which it finds a state reaching no action (which
         would send no decision to the environment) is refused with that state.
         """
+        check_size(self.root)
         for node in self.nodes():
             if isinstance(node, Condition) and not node.feature < len(self.feature_names):
                 raise ValueError(f"condition on feature {node.feature}, but the tree names "
@@ -262,7 +265,7 @@ class BehaviorTree:
         if state is not None:
             where = ", ".join(f"{name}={value:.6g}"
                               for name, value in zip(self.feature_names, state, strict=True))
-            found = decide_batch(self.root, state[None])[0] == NO_DECISION
+            found = decide_batch(self.root, state[None], finite=False)[0] == NO_DECISION
             problem = (f"no action is reached on some states (e.g. {where})" if found else
                        f"cannot prove that every state reaches an action (the proof fails near "
                        f"{where})")
@@ -328,8 +331,30 @@ _COMPOSITES: dict[str, type[Selector | Fallback | Sequence]] = {
     "selector": Selector, "fallback": Fallback, "sequence": Sequence}
 
 
-def node_from_dict(doc: Any, where: str = "root") -> Node:
-    """One node of the JSON format, strictly; errors say where (``root.children[2]``)."""
+def check_size(root: Node) -> None:
+    """``ValueError`` unless the tree is at most :data:`MAX_DEPTH` deep and has at most
+    :data:`MAX_NODES` nodes (checked without recursion, so any object graph is safe)."""
+    stack: list[tuple[Any, int]] = [(root, 0)]
+    count = 0
+    while stack:
+        node, depth = stack.pop()
+        count += 1
+        if depth > MAX_DEPTH:
+            raise ValueError(f"the behavior tree is more than {MAX_DEPTH} levels deep; a BT "
+                             "this deep is not one ibt writes (flatten it)")
+        if count > MAX_NODES:
+            raise ValueError(f"the behavior tree has more than {MAX_NODES:,} nodes (or a node "
+                             "that contains itself); a BT this large is not one ibt writes")
+        stack.extend((child, depth + 1) for child in getattr(node, "children", ()))
+
+
+def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
+    """One node of the JSON format, strictly; errors say where (``root.children[2]``).
+
+    Deeper than :data:`MAX_DEPTH` levels is a ``ValueError`` (not a RecursionError)."""
+    if depth > MAX_DEPTH:
+        raise ValueError(f"{where.split('.children')[0]}: the behavior tree is more than "
+                         f"{MAX_DEPTH} levels deep; a BT this deep is not one ibt writes")
     if not isinstance(doc, dict):
         raise ValueError(f"{where}: a node is a JSON object, got {type(doc).__name__}")
     kind = doc.get("type")
@@ -351,7 +376,7 @@ def node_from_dict(doc: Any, where: str = "root") -> Node:
         raise ValueError(f"{where}: {err}") from None
     if not isinstance(doc["children"], list):
         raise ValueError(f"{where}: children must be a list of nodes")
-    children = tuple(node_from_dict(c, f"{where}.children[{i}]")
+    children = tuple(node_from_dict(c, f"{where}.children[{i}]", depth + 1)
                      for i, c in enumerate(doc["children"]))
     if kind == "inverter":
         if len(children) != 1:

@@ -79,6 +79,27 @@ _CODE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>)\s*(\S+)\s*$")
 _XML_DECLARATION = '<?xml version="1.0" encoding="UTF-8"?>\n'
 
 
+# what XML 1.0 allows in text and attributes (its production Char); the rest is replaced
+_NOT_XML_CHAR = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
+REPLACEMENT = "\ufffd"
+
+
+def xml_safe(text: str) -> str:
+    """``text`` with every character XML 1.0 cannot hold (control characters, lone
+    surrogates, U+FFFE/U+FFFF) replaced by U+FFFD: any Unicode name becomes well-formed XML
+    once escaped (ElementTree escapes ``&``, ``<``, ``>`` and quotes in attributes)."""
+    return _NOT_XML_CHAR.sub(REPLACEMENT, text)
+
+
+def comment_safe(text: str) -> str:
+    """``text`` fit for an XML comment: :func:`xml_safe`, no ``--`` anywhere (every run of
+    hyphens is split by spaces) and no trailing hyphen, so that no name can close the comment."""
+    text = xml_safe(text)
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return text + " " if text.endswith("-") else text
+
+
 def _identifier(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_]", "_", name)
 
@@ -140,9 +161,9 @@ def _element(node: Node, bt: BehaviorTree, ids: list[str], keys: list[str],
     if isinstance(node, Condition):
         if flavour == "portable":
             return ET.Element(SCRIPT_CONDITION, {"code": condition_code(node, keys),
-                                                 "name": bt.label(node)})
+                                                 "name": xml_safe(bt.label(node))})
         return ET.Element("Condition", {
-            "ID": CONDITION_ID, "name": bt.label(node), "feature": str(node.feature),
+            "ID": CONDITION_ID, "name": xml_safe(bt.label(node)), "feature": str(node.feature),
             "op": node.op, "threshold": threshold_text(node.threshold)})
     if isinstance(node, Action):
         return ET.Element("Action", {"ID": ids[node.action]})
@@ -166,7 +187,7 @@ def _keys_comment(bt: BehaviorTree, keys: list[str]) -> str:
     text = ("\n  Blackboard keys: set each before a tick, as the float32 observation widened "
             "to double.\n" + "\n".join(lines) + "\n  Actions: " + ", ".join(
                 f"{ident} = {i}" for i, ident in enumerate(action_ids(bt.action_names))) + "\n  ")
-    return text.replace("--", "- -")  # "--" may not appear inside an XML comment
+    return comment_safe(text)  # no name may close the comment or break the XML
 
 
 def to_btcpp_xml(bt: BehaviorTree, tree_id: str = "MainTree", flavour: str = "portable") -> str:
@@ -179,7 +200,7 @@ def to_btcpp_xml(bt: BehaviorTree, tree_id: str = "MainTree", flavour: str = "po
     root = ET.Element("root", {"BTCPP_format": "4"})
     if flavour == "portable":
         root.append(ET.Comment(_keys_comment(bt, keys)))
-    tree = ET.SubElement(root, "BehaviorTree", {"ID": tree_id})
+    tree = ET.SubElement(root, "BehaviorTree", {"ID": xml_safe(tree_id)})
     tree.append(_element(bt.root, bt, ids, keys, flavour))
     model = ET.SubElement(root, "TreeNodesModel")
     if flavour == "check-feature":

@@ -36,6 +36,7 @@ from ibt.bt.model import (
     Sequence,
     indexed,
 )
+from ibt.export.btcpp import xml_safe
 
 FONT = "Helvetica"
 FONT_PT = 12  #: conditions, actions and summaries
@@ -84,6 +85,15 @@ class _Row:
     deciding: bool
 
 
+def plain_label(text: str) -> str:
+    """``text`` as a graphviz label shown literally: never an HTML label (a name such as
+    ``<<TABLE>...<IMG SRC="f"/>...>>`` would make ``dot`` read a file), no ``\\N``-style
+    escapes, no character that XML or UTF-8 cannot hold."""
+    import graphviz
+
+    return graphviz.escape(xml_safe(text))
+
+
 class _Drawer:
     """Builds one graphviz graph; ``elements`` maps each BT node index to the graphviz node
     (``name`` or ``name:row``) that shows it."""
@@ -116,7 +126,8 @@ class _Drawer:
         return self.highlight.get(index)
 
     def _text(self, node: Node) -> str:
-        return self.bt.label(node, self.precision)
+        """A node's label as text (escape it for the kind of graphviz label it goes in)."""
+        return xml_safe(self.bt.label(node, self.precision))
 
     def _kids(self, index: int) -> tuple[int, ...]:
         return self.table[index][1]
@@ -176,7 +187,8 @@ class _Drawer:
     def _action(self, node: Action, index: int) -> str:
         name = self._name()
         status = self._status(index)
-        attrs = {"label": self._text(node), "shape": "box", "style": "filled,rounded",
+        attrs = {"label": plain_label(self._text(node)), "shape": "box",
+                 "style": "filled,rounded",
                  "fillcolor": ACTION_FILL}
         attrs.update(self._node_status(status, "filled,rounded"))
         if status:
@@ -264,12 +276,12 @@ class _Drawer:
                 rules = len(guard[0].children)
             else:
                 rules = 1
-            head = f"→  {html.escape(self._text(children[-1]))}"
+            head = f"→  {self._text(children[-1])}"  # escaped once, by _table
             facts = (f"{rules} rule{'s' * (rules != 1)}, {conditions} "
                      f"condition{'s' * (conditions != 1)}")
         else:
             acts = sorted({self._text(n) for n in nodes if isinstance(n, Action)})
-            head = f"{_GLYPH.get(node.type, '')}  {html.escape(', '.join(acts) or node.type)}"
+            head = f"{_GLYPH.get(node.type, '')}  {', '.join(acts) or node.type}"
             facts = f"{len(nodes)} nodes, {conditions} conditions"
         status = self._status(index)
         rows: list[_Row] = []
@@ -335,7 +347,7 @@ def _drawer(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
             stagger: int = 1, title: str | None = None, legend: bool = True) -> _Drawer:
     drawer = _Drawer(bt, highlight, deciding, precision, collapse, stagger)
     drawer.emit(0)
-    lines = [html.escape(title)] if title else []
+    lines = [html.escape(xml_safe(title))] if title else []
     if highlight is not None and legend:
         lines.append(f'<FONT POINT-SIZE="{FONT_PT}">{TRACE_LEGEND}</FONT>')
     if lines:
@@ -402,16 +414,17 @@ def decision_tree_graphviz(tree, feature_names, action_names, precision: int = 4
                              edge_attr={"fontname": FONT, "fontsize": str(FONT_PT),
                                         "arrowsize": "0.6", "color": "#555555"})
     if title:
-        graph.attr(label=title)
+        graph.attr(label=plain_label(title))
     for node in range(t.node_count):
         left, right = t.children_left[node], t.children_right[node]
         if left == right:
             action = int(classes[int(np.argmax(t.value[node][0]))])
-            graph.node(f"d{node}", action_names[action], shape="box", style="filled,rounded",
+            graph.node(f"d{node}", plain_label(action_names[action]), shape="box",
+                       style="filled,rounded",
                        fillcolor=ACTION_FILL)
             continue
         label = f"{feature_names[t.feature[node]]} <= {t.threshold[node]:.{precision}g}"
-        graph.node(f"d{node}", label, shape="box")
+        graph.node(f"d{node}", plain_label(label), shape="box")
         graph.edge(f"d{node}", f"d{left}", label="yes")
         graph.edge(f"d{node}", f"d{right}", label="no")
     return graph

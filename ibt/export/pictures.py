@@ -199,7 +199,11 @@ def compose(panels: list[str | Path], path: str | Path, columns: int | None = No
             canvas.save(buffer, format="png")
             _save_png(buffer.getvalue(), target, font, dpi, kind)
         else:
+            # fixed metadata (Pillow stamps the time and the temporary file's name otherwise),
+            # so the same panels always make the same bytes
+            fixed = ({"title": target.stem, "creationDate": None, "modDate": None}
+                     if fmt == "pdf" else {})
             with atomic_target(target) as tmp:
-                canvas.save(tmp, format=fmt, resolution=dpi)
+                canvas.save(tmp, format=fmt, resolution=dpi, **fixed)
         written.append(target)
     return written

@@ -194,8 +194,12 @@ def experts_markdown(res: Results) -> str:
     return "\n".join(lines)
 
 
-def timings_markdown(res: Results) -> str:
-    """How long each stage took (summed over its runs) and where."""
+def timings_markdown(res: Results, with_record: bool = False) -> str:
+    """How long each stage took (summed over its runs) and where.
+
+    ``make figures``'s own wall time changes on every run, so the README and the paper (which
+    ``make figures`` writes) only name its record, ``data/results/make_figures.json``;
+    ``with_record`` prints the time itself (``make reproduce``'s estimate)."""
     lines = ["| stage | runs | CPU time (summed) | notes |", "|---|---|---|---|"]
     experts = res.experts()
     if experts is not None:
@@ -212,12 +216,14 @@ def timings_markdown(res: Results) -> str:
         lines.append(f"| {label} | {len(table)} | {seconds / 3600:.1f} h | "
                      f"machine: {res.manifest(name).get('machine', '?')} |")
     figures = res.results_dir / "make_figures.json"
-    if figures.exists():
+    if figures.exists() and with_record:
         facts = json.loads(figures.read_text())
-        # the report runs inside ``make figures``: the time on record is the previous run's
-        lines.append(f"| `make figures`, previous run (venv ready) | 1 | "
+        lines.append(f"| `make figures`, last run (venv ready) | 1 | "
                      f"{facts['seconds']:.0f} s wall | "
                      f"{facts.get('machine', '')}, {facts.get('date', '')} |")
+    elif figures.exists():  # a number here would change this file on every run
+        lines.append("| `make figures` (venv ready) | 1 | wall time of the last run: "
+                     "`data/results/make_figures.json` | written at the end of each run |")
     return "\n".join(lines)
 
 
@@ -401,9 +407,63 @@ def _decision_list(res: Results) -> str | None:
     return "\n".join(lines)
 
 
+def structure_markdown(res: Results) -> str | None:
+    """Imitation-BT+S on the anchors' protocol (``front_protocol.csv``): per task, expert and
+    leaf limit, means over seeds of the committed BTs' 1,000-episode evaluation, against the
+    bar of the best published small policy of that task (``anchor_*`` columns); None when
+    absent."""
+    rows = res.table("front_protocol")
+    if rows is None or rows.empty:
+        return None
+    lines = ["| task | expert | leaf limit | seeds | leaves | BT nodes | mean return (1,000 "
+             "episodes) | std | share >= threshold | CPU-min a run | steps/s (random's) "
+             "| bar (anchor) | verdict |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    keys = ["task", "expert", "max_leaf_nodes"]
+    for key, g in rows.groupby(keys, sort=False):
+        task, expert, limit = key
+        share = g["share_at_threshold"].mean() if g["share_at_threshold"].notna().any() else None
+        mean, nodes = g["mean_return"].mean(), g["bt_nodes"].mean()
+        anchor = g.iloc[0]
+        bar, verdict = "none", "measured"
+        if isinstance(anchor.get("anchor"), str) and anchor["anchor"] and \
+                pd.notna(anchor.get("anchor_leaves")) and int(limit) <= anchor["anchor_leaves"]:
+            need_share = anchor.get("anchor_min_share")
+            bar = (f"> {anchor['anchor_mean_return']:g} with <= {int(anchor['anchor_leaves'])} "
+                   f"leaves, <= {int(anchor['anchor_max_bt_nodes'])} BT nodes"
+                   + (f", >= {100 * need_share:.0f} % >= threshold" if pd.notna(need_share)
+                      else "") + f" ({anchor['anchor']})")
+            met = (mean > anchor["anchor_mean_return"]
+                   and nodes <= anchor["anchor_max_bt_nodes"]
+                   and (pd.isna(need_share) or (share is not None and share >= need_share)))
+            verdict = "met" if met else "missed"
+        share_text = f"{100 * share:.1f} %" if share is not None else "n/a"
+        speed = (f"{g['search_steps_per_second'].mean():,.0f} "
+                 f"({g['random_steps_per_second'].mean():,.0f})")
+        lines.append(f"| {task} | {expert} | {int(limit)} | {len(g)} | "
+                     f"{g['tree_leaves'].mean():.1f} | {nodes:.1f} | {mean:.1f} | "
+                     f"{g['std_return'].mean():.1f} | {share_text} | "
+                     f"{g['cpu_seconds'].mean() / 60:.1f} | {speed} | {bar} | {verdict} |")
+    return "\n".join(lines)
+
+
+def _structure(res: Results) -> str | None:
+    table = structure_markdown(res)
+    if table is None:
+        return None
+    return "\n".join([
+        "Imitation-BT+S (notebook 07: structure search by return seeded with Imitation-BT+'s "
+        "and the four grid trees, helped by the expert's labels on the states the small trees "
+        "visit, then CMA-ES and pruning) on the published anchors' protocol: each seed's "
+        "smallest verified BT rolled out from its JSON document on 1,000 final episodes; means "
+        "over seeds. The bar is the best published small policy of the task (MENS-DT-RL, "
+        "Costa et al. 2024) at its own size.", "", table])
+
+
 BEYOND: list[BeyondPart] = [
     BeyondPart("Small BTs that keep the expert: Imitation-BT+ and the size-retention front",
                "front.csv", _front),
+    BeyondPart("Imitation-BT+S: ahead of the published small trees at their own size?",
+               "front_protocol.csv", _structure),
     BeyondPart("Decision-list synthesis: nodes against Imitation-BT's", "synthesis.csv",
                _decision_list),
 ]
@@ -495,6 +555,11 @@ def readme_block(res: Results) -> str:
            "brackets), random-normalised retention, BT nodes. The front of every method is "
            "in [figures/front.png](figures/front.png).", "", plus, ""]
           if (plus := plus_targets_markdown(res)) is not None else []),
+        *(["Beyond Imitation-BT+: **Imitation-BT+S** (notebook 07) evolves the small tree's "
+           "structure by return; its BTs on the anchors' protocol (1,000 final episodes), "
+           "against the best published small tree of each task at its own size:", "",
+           structure, ""]
+          if (structure := structure_markdown(res)) is not None else []),
         timings_markdown(res),
         "",
         README_END,

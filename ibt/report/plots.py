@@ -35,20 +35,22 @@ OKABE_ITO = ("#000000", "#E69F00", "#56B4E9", "#009E73", "#F0E442", "#0072B2", "
              "#CC79A7")
 GREY = "#999999"
 
-METHOD_ORDER = ("bc", "dagger", "viper", "imitation-bt", "imitation-bt+", "decision-list",
-                "bt-espresso", "re-bt-espresso")
+METHOD_ORDER = ("bc", "dagger", "viper", "imitation-bt", "imitation-bt+", "imitation-bt+s",
+                "decision-list", "bt-espresso", "re-bt-espresso")
 METHOD_COLORS = {"bc": GREY, "dagger": "#56B4E9", "viper": "#0072B2",
                  "imitation-bt": "#D55E00", "imitation-bt+": "#E69F00",
-                 "decision-list": "#CC79A7", "bt-espresso": "#F0E442",
+                 "imitation-bt+s": "#000000", "decision-list": "#CC79A7", "bt-espresso": "#F0E442",
                  "re-bt-espresso": "#009E73"}
 #: the two baselines are synthesised from the BC tree: hatched like it is their source
 METHOD_HATCHES = {"bt-espresso": "//", "re-bt-espresso": "\\\\"}
 METHOD_LABELS = {"bc": "BC", "dagger": "DAgger", "viper": "VIPER", "imitation-bt": "Imitation-BT",
-                 "imitation-bt+": "Imitation-BT+", "decision-list": "decision list",
+                 "imitation-bt+": "Imitation-BT+", "imitation-bt+s": "Imitation-BT+S",
+                 "decision-list": "decision list",
                  "bt-espresso": "BT-Espresso", "re-bt-espresso": "RE:BT-Espresso"}
 BASELINE_NOTE = ("BT-Espresso and RE:BT-Espresso are synthesised from the BC tree and decide "
                  "exactly as it does, so their retention repeats BC's.")
-STATUS_NOTE = {"excluded": "expert excluded", "constant-action": "constant-action expert"}
+#: the grey band's label: short lines, so labels of neighbouring tasks never overlap
+STATUS_NOTE = {"excluded": "expert\nexcluded", "constant-action": "constant-\naction\nexpert"}
 
 
 def methods_in(frame: pd.DataFrame) -> list[str]:
@@ -622,13 +624,17 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
             handle = ax.errorbar(line["bt_nodes"], line["retention_norm"],
                                  yerr=[(line["retention_norm"] - line["low"]).clip(lower=0),
                                        (line["high"] - line["retention_norm"]).clip(lower=0)],
-                                 fmt="o-" if method != "imitation-bt+" else "D-", ms=4,
+                                 fmt={"imitation-bt+": "D-", "imitation-bt+s": "s-"}.get(
+                                     method, "o-"), ms=4,
                                  capsize=2, lw=1.2, color=style["color"],
                                  label=style["label"])
             handles.setdefault(str(style["label"]), handle)
-        for anchor in anchors[anchors["task"] == task].drop_duplicates("source").itertuples():
-            handle = ax.scatter([anchor.tree_nodes], [anchor.retention_norm], marker="*",
-                                s=110, color="black", zorder=5,
+        sources = list(dict.fromkeys(anchors["source"]))
+        for anchor in (anchors[anchors["task"] == task]
+                       .drop_duplicates(["source", "tree_nodes"]).itertuples()):
+            marker = ("*", "X", "P", "s")[sources.index(anchor.source) % 4]
+            handle = ax.scatter([anchor.tree_nodes], [anchor.retention_norm], marker=marker,
+                                s=110 if marker == "*" else 60, color="black", zorder=5,
                                 label=f"{anchor.source} (published)")
             handles.setdefault(f"{anchor.source} (published)", handle)
         ax.axhline(100, color="black", lw=0.8, ls=":")
@@ -638,7 +644,10 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
         values = pd.concat([points.loc[points["task"] == task, "retention_norm"],
                             means.loc[means["task"] == task, "low"]])
         ax.set_ylim(min(0.0, float(values.min()) - 5) if len(values) else 0, 110)
-        ax.set_title(task)
+        shown = (list(dict.fromkeys(means.loc[means["task"] == task, "expert"]))
+                 if "expert" in means else [])
+        who = ", ".join(str(e).upper() for e in shown)
+        ax.set_title(f"{task}, {who} expert{'s' if len(shown) > 1 else ''}" if shown else task)
         ax.set_xlabel("BT nodes (log)")
     for ax in axes[:, 0]:
         ax.set_ylabel("retention (%, random-norm.)")

@@ -57,9 +57,9 @@ KEY_PACKAGES = ("gymnasium", "highway-env", "scikit-learn", "stable-baselines3")
 #: The code version of every cache kind, part of each key. Bump a kind's number whenever its
 #: computation changes (the loop, an environment's dynamics, what the payload holds): every
 #: entry of that kind then misses and is recomputed, and the old ones are listed as stale by
-#: ``python -m ibt.runs.cache_admin stale`` (removed by ``prune``). To add a kind, add a line here
-#: starting
-#: at 1 and name the function that computes it; a kind not listed here is an error.
+#: ``python -m ibt.runs.cache_admin stale`` (removed by ``prune``). To add a kind, add a line
+#: here starting at 1 and name the function that computes it; a kind not listed here is an
+#: error.
 CODE_VERSIONS: dict[str, int] = {
     "distill": 1,  # ibt.runs.pipeline.distill_cached: the interactive loop of ibt.distill.loop
     "expert-eval": 1,  # ibt.runs.grid.expert_evaluation
@@ -69,6 +69,9 @@ CODE_VERSIONS: dict[str, int] = {
     "refine": 3,  # ibt.runs.front.refine_cached: ibt.refine.by_return.refine of a distilled tree
     "front-bt": 1,  # ibt.runs.front.bt_sizes: every synthesiser's verified BT of one tree
     "executors": 1,  # ibt.runs.grid.executors_agree
+    "evolve": 1,  # ibt.runs.search.evolve_cached: ibt.refine.structure.evolve
+    "protocol": 1,  # ibt.runs.search.protocol_evaluation: a BT on the anchors' protocol
+    "speed": 1,  # ibt.runs.grid.speed_benchmark: executors' decisions/s, per machine
 }
 READS_ENV = "IBT_CACHE_READS"
 

@@ -612,6 +612,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--reads", type=Path, help="a folder of IBT_CACHE_READS logs: also "
                         "list (or prune) the current entries no lookup read")
     parser.add_argument("--dry-run", action="store_true", help="say what would change")
+    parser.add_argument("--count", action="store_true", help="stale: one summary line with the "
+                        "command that lists them, instead of the list")
     parser.add_argument("--incomplete", action="store_true", help="prune: also remove "
                         "incomplete entries that still hold a payload")
     parser.add_argument("--trust-pickles", action="store_true", help="migrate-plain: unpickle "
@@ -631,8 +633,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{kind:12s} {status:10s} {n}")
     elif args.command == "stale":
         found = not_current(args.cache_dir, reads)
-        print(f"cache entries in {args.cache_dir} that no lookup "
-              f"{'read' if reads is not None else 'can reach'}: {_listing(found)}")
+        what = f"cache entries in {args.cache_dir} that no lookup " + (
+            "read" if reads is not None else "can reach")
+        if args.count:  # `make figures`: one line, not a list that reads like an error
+            again = [a for a in (argv if argv is not None else sys.argv[1:]) if a != "--count"]
+            print(f"{what}: {_listing(found).splitlines()[0]} (harmless; list them with "
+                  f"`python -m ibt.runs.cache_admin {' '.join(again)}`, remove them with "
+                  "`prune`)")
+        else:
+            print(f"{what}: {_listing(found)}")
     elif args.command == "prune":
         gone = prune(args.cache_dir, reads, dry_run=args.dry_run, incomplete=args.incomplete)
         print(f"{'would remove' if args.dry_run else 'removed'}: {_listing(gone)}")

@@ -206,13 +206,13 @@ def write_results(cfg: Config, frame: pd.DataFrame, name: str, **facts: Any) -> 
     """``data/results/<name>.csv`` plus ``<name>.manifest.json`` (profile's data dir).
 
     The manifest records the grid's facts (cells, total and summed wall time, machine,
-    versions) beside the table.
+    versions) beside the table; not the git commit, which would change it on every commit.
     """
     import json
     import platform
 
     from ibt.files import atomic_write_csv, atomic_write_text
-    from ibt.runs.cache import git_sha, package_versions
+    from ibt.runs.cache import package_versions
 
     target = cfg.data_dir / "results" / f"{name}.csv"
     atomic_write_csv(target, frame)
@@ -220,7 +220,7 @@ def write_results(cfg: Config, frame: pd.DataFrame, name: str, **facts: Any) -> 
                 "summed_cell_seconds": round(float(frame.get("wall_seconds",
                                                              pd.Series([0.0])).sum()), 1),
                 "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-                "git_sha": git_sha(), "versions": package_versions(), **facts}
+                "versions": package_versions(), **facts}
     atomic_write_text(target.with_suffix(".manifest.json"),
                       json.dumps(manifest, indent=1, sort_keys=True, default=str) + "\n")
     return target
@@ -323,6 +323,33 @@ def executors_agree(cfg: Config, task: str | Task, bt: Any, tree: Any, n_states:
 
     return load_or_compute("executors", params, compute, cache_dir=cfg.cache_dir, codec="json",
                            refresh=cfg.refresh)
+
+
+def speed_benchmark(cfg: Config, task: str | Task, algo: str, seed: int) -> pd.DataFrame:
+    """Decisions per second of every executor (:func:`ibt.evaluate.speed.benchmark`) on the
+    Imitation-BT BT of one grid run, measured once per machine and cached: a rerun of
+    ``make figures`` shows the same measurement, ``make reproduce`` measures again."""
+    import platform
+
+    from ibt.evaluate import speed
+    from ibt.synth.imitation import imitation_bt
+
+    spec = get_task(task)
+    tree = distill_cached(cfg, spec, algo, "imitation-bt", seed).best_tree
+    bt = imitation_bt(tree, spec).bt
+    params = {"task": spec.name, "algo": algo, "seed": seed, "tree": tree_digest(tree),
+              "bt": _bt_digest(bt), "machine": f"{platform.machine()} {platform.processor()}",
+              "cores": os.cpu_count()}
+
+    def compute() -> list[dict[str, Any]]:
+        states = spec.sample_features(100_000, np.random.default_rng(0))
+        expert = load_expert(spec, algo, expert_path(spec, algo, cfg.experts_dir))
+        rates = speed.benchmark(bt, tree, expert, states, spec.observations(states))
+        return rates.to_dict("records")
+
+    rows = load_or_compute("speed", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                           refresh=cfg.refresh)
+    return pd.DataFrame(rows)
 
 
 def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "bc"

@@ -20,7 +20,9 @@ reference ``{"__array__": [pool, offset, shape]}``. A synthesis payload is one J
 schema, the row and the BT in the format of ``data/trees/``
 (:meth:`ibt.bt.model.BehaviorTree.to_dict`).
 
-Values are encoded exactly (:func:`difference` of a value and its decoded copy is ``None``): JSON
+Values are encoded exactly by :mod:`ibt.distill.tree_codec` (shared with the tree files of
+:mod:`ibt.distill.tree_file`), extended here by :class:`TreeArrays`
+(:func:`difference` of a value and its decoded copy is ``None``): JSON
 carries ``None``, booleans, integers, strings, lists, string-keyed dicts and finite floats (their
 ``repr`` is exact); everything else is a tagged object: ``{"__tuple__": [...]}``,
 ``{"__float__": "nan" | "inf" | "-inf"}``, ``{"__numpy__": dtype, "value": v}`` for a NumPy
@@ -43,181 +45,46 @@ import importlib
 import io
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, fields, is_dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from ibt.distill.tree_codec import PlainDataError, PlainDecoder, PlainEncoder
+
 #: The schema version of each plain payload written here (the cache's key does not hold it:
 #: a payload of another version is a miss, recomputed).
 SCHEMA_VERSIONS: dict[str, int] = {"ibt-distillation": 1, "ibt-refinement": 1,
-                                   "ibt-synthesis": 1}
+                                   "ibt-synthesis": 1, "ibt-evolution": 1}
 META = "meta"  # the npz member holding the JSON document
-_TAGS = frozenset({"__tuple__", "__float__", "__numpy__", "__array__", "__items__",
-                   "__sklearn_tree__", "__sklearn_Tree__", "__tree_arrays__"})
-_ARRAY_KINDS = "biuf"  # bool, signed and unsigned integers, floats: what np.load reads plainly
-_SCALAR_KINDS = "biufU"
-_ORDER = {"=": "", "|": "", "<": "le" if np.little_endian else "", ">": "" if np.little_endian
-          else "be"}  # a pool's name: kind, item size and (when not native) byte order
-
-
-class PayloadError(ValueError):
-    """Bytes that are not a payload of the expected schema and version."""
+PayloadError = PlainDataError  # bytes that are not a payload of the expected schema and version
 
 
 # --- encoding -------------------------------------------------------------------------------
 
-class _Encoder:
-    """Values to JSON-able documents; arrays go to ``pools`` (``None``: arrays refused).
+class _Encoder(PlainEncoder):
+    """:class:`ibt.distill.tree_codec.PlainEncoder` and :class:`TreeArrays`."""
 
-    Arrays are appended, flattened, to one pool per dtype (an npz member each), and referenced
-    as ``{"__array__": [pool, offset, shape]}``: a run's hundreds of small arrays cost a few
-    members and compress together.
-    """
-
-    def __init__(self, pools: dict[str, list[np.ndarray]] | None):
-        self.pools = pools
-        self.sizes: dict[str, int] = {}
-
-    def array(self, value: np.ndarray) -> dict[str, Any]:
-        if self.pools is None:
-            raise TypeError("a JSON payload cannot hold an array")
-        if value.dtype.kind not in _ARRAY_KINDS or value.dtype.fields is not None:
-            raise TypeError(f"cannot store an array of dtype {value.dtype} as plain data")
-        pool = f"{value.dtype.kind}{value.dtype.itemsize}{_ORDER[value.dtype.byteorder]}"
-        offset = self.sizes.get(pool, 0)
-        self.pools.setdefault(pool, []).append(np.ascontiguousarray(value).reshape(-1))
-        self.sizes[pool] = offset + value.size
-        return {"__array__": [pool, offset, list(value.shape)]}
-
-    def encode(self, value: Any) -> Any:
-        from sklearn.tree import DecisionTreeClassifier
-        from sklearn.tree._tree import Tree
-
+    def encode_other(self, value: Any) -> Any:
         from ibt.refine.tree_arrays import TreeArrays
 
-        if value is None or type(value) in (bool, str):
-            return value
-        if isinstance(value, np.generic):
-            if value.dtype.kind not in _SCALAR_KINDS:
-                raise TypeError(f"cannot store a NumPy {value.dtype} scalar as plain data")
-            return {"__numpy__": value.dtype.str, "value": self.encode(value.item())}
-        kind = type(value)
-        if kind is int:
-            return value
-        if kind is float:
-            if math.isfinite(value):
-                return value
-            return {"__float__": "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")}
-        if kind is list:
-            return [self.encode(v) for v in value]
-        if kind is tuple:
-            return {"__tuple__": [self.encode(v) for v in value]}
-        if kind is dict:
-            if all(type(k) is str and k not in _TAGS for k in value):
-                return {k: self.encode(v) for k, v in value.items()}
-            return {"__items__": [[self.encode(k), self.encode(v)] for k, v in value.items()]}
-        if kind is np.ndarray:
-            return self.array(value)
-        if kind is DecisionTreeClassifier:
-            return {"__sklearn_tree__": {k: self.encode(v) for k, v in vars(value).items()}}
-        if kind is Tree:
-            state = value.__getstate__()
-            nodes = state["nodes"]
-            return {"__sklearn_Tree__": {
-                "n_features": int(value.n_features), "n_outputs": int(value.n_outputs),
-                "n_classes": self.array(np.asarray(value.n_classes)),
-                "state": {k: ({"fields": {f: self.array(np.ascontiguousarray(nodes[f]))
-                                          for f in nodes.dtype.names}} if k == "nodes"
-                              else self.encode(v)) for k, v in state.items()}}}
-        if kind is TreeArrays:
+        if type(value) is TreeArrays:
             return {"__tree_arrays__": {f.name: self.encode(getattr(value, f.name))
                                         for f in fields(value)}}
-        raise TypeError(f"cannot store a {kind.__module__}.{kind.__qualname__} as plain data")
+        return super().encode_other(value)
 
 
-class _Decoder:
-    """Documents of :class:`_Encoder` back to values (``arrays``: the npz's members)."""
+class _Decoder(PlainDecoder):
+    """:class:`ibt.distill.tree_codec.PlainDecoder` and :class:`TreeArrays`."""
 
-    def __init__(self, arrays: Mapping[str, np.ndarray] | None):
-        self.arrays = arrays
-
-    def array(self, doc: Any) -> np.ndarray:
-        ref = doc.get("__array__") if isinstance(doc, dict) and len(doc) == 1 else None
-        if not (isinstance(ref, list) and len(ref) == 3 and isinstance(ref[0], str)
-                and type(ref[1]) is int and isinstance(ref[2], list)):
-            raise PayloadError(f"expected an array reference, got {doc!r:.60}")
-        pool, offset, shape = ref
-        if self.arrays is None or pool not in self.arrays or self.arrays[pool].ndim != 1:
-            raise PayloadError(f"no array pool {pool!r} in the payload")
-        size = math.prod(shape)
-        if offset < 0 or offset + size > len(self.arrays[pool]):
-            raise PayloadError(f"array reference {ref} lies outside its pool")
-        return self.arrays[pool][offset:offset + size].reshape(shape).copy()
-
-    def decode(self, doc: Any) -> Any:
-        if doc is None or type(doc) in (bool, int, float, str):
-            return doc
-        if type(doc) is list:
-            return [self.decode(v) for v in doc]
-        if type(doc) is not dict:
-            raise PayloadError(f"unexpected {type(doc).__name__} in a payload")
-        tags = sorted(_TAGS & set(doc))
-        if not tags:
-            return {k: self.decode(v) for k, v in doc.items()}
-        tag = tags[0]
-        if set(doc) != ({tag, "value"} if tag == "__numpy__" else {tag}):
-            raise PayloadError(f"malformed tagged value with keys {sorted(doc)}")
-        body = doc[tag]
-        if tag == "__tuple__":
-            return tuple(self.decode(v) for v in body)
-        if tag == "__float__":
-            if body not in ("nan", "inf", "-inf"):
-                raise PayloadError(f"unknown float {body!r}")
-            return float(body)
-        if tag == "__numpy__":
-            dtype = np.dtype(body)
-            if dtype.kind not in _SCALAR_KINDS:
-                raise PayloadError(f"unexpected NumPy scalar dtype {body!r}")
-            return dtype.type(self.decode(doc["value"]))
-        if tag == "__items__":
-            return {self.decode(k): self.decode(v) for k, v in body}
-        if tag == "__array__":
-            return self.array(doc)
-        if tag == "__sklearn_tree__":
-            from sklearn.tree import DecisionTreeClassifier
-
-            model = DecisionTreeClassifier.__new__(DecisionTreeClassifier)
-            model.__dict__.update({k: self.decode(v) for k, v in body.items()})
-            return model
-        if tag == "__sklearn_Tree__":
-            return self._tree(body)
+    def decode_other(self, tag: str, body: Any) -> Any:
         from ibt.refine.tree_arrays import TreeArrays
 
-        return TreeArrays(**{k: self.decode(v) for k, v in body.items()})
-
-    def _tree(self, body: dict[str, Any]) -> Any:
-        from sklearn.tree._tree import NODE_DTYPE, Tree
-
-        state = dict(body["state"])
-        columns = state["nodes"]["fields"]
-        if list(columns) != list(NODE_DTYPE.names):
-            raise PayloadError(f"tree node fields {list(columns)} are not scikit-learn's "
-                               f"{list(NODE_DTYPE.names)}")
-        count = len(self.array(columns[NODE_DTYPE.names[0]]))
-        nodes = np.zeros(count, dtype=NODE_DTYPE)
-        for name, ref in columns.items():
-            nodes[name] = self.array(ref)
-        state = {k: (nodes if k == "nodes" else self.decode(v)) for k, v in state.items()}
-        if isinstance(state.get("values"), np.ndarray):
-            state["values"] = np.ascontiguousarray(state["values"])
-        tree = Tree(int(body["n_features"]),
-                    np.asarray(self.array(body["n_classes"]), dtype=np.intp),
-                    int(body["n_outputs"]))
-        tree.__setstate__(state)
-        return tree
+        if tag == "__tree_arrays__":
+            return TreeArrays(**{k: self.decode(v) for k, v in body.items()})
+        return super().decode_other(tag, body)
 
 
 def encode(value: Any) -> Any:
@@ -348,12 +215,14 @@ class Codec:
 
 _distillation = _dataclass_codec("ibt-distillation", "ibt.distill.loop.Distillation")
 _refinement = _dataclass_codec("ibt-refinement", "ibt.refine.by_return.Refinement")
+_evolution = _dataclass_codec("ibt-evolution", "ibt.refine.structure.Evolution")
 #: Every codec of the cache, by the name ``load_or_compute(codec=...)`` and manifests use.
 CODECS: dict[str, Codec] = {
     "json": Codec("json", "json", _dumps_json, _loads_json),
     "csv": Codec("csv", "csv", _dumps_csv, _loads_csv),
     "distillation": Codec("distillation", "npz", *_distillation),
     "refinement": Codec("refinement", "npz", *_refinement),
+    "evolution": Codec("evolution", "npz", *_evolution),
     "synthesis": Codec("synthesis", "json", dumps_synthesis, loads_synthesis),
 }
 

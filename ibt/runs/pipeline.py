@@ -123,12 +123,13 @@ def compare_policies(cfg: Config, task: str | Task, policies: dict[str, Any],
 
 
 def provenance() -> dict[str, str]:
-    """Package versions and the git commit, for the last cell of every notebook."""
+    """Package versions and the machine, for the last cell of every notebook (no git commit:
+    it changes on every commit, and a committed notebook is its own commit's)."""
     import platform
 
-    from ibt.runs.cache import git_sha, package_versions
+    from ibt.runs.cache import package_versions
 
-    return {"git_sha": git_sha(), "python": platform.python_version(),
+    return {"python": platform.python_version(),
             "machine": f"{platform.machine()}, {os.cpu_count()} cores", **package_versions()}
 
 

@@ -70,8 +70,7 @@ from ibt.synth.logic import espresso_cubes
 from ibt.synth.rules import Literal, Term, merge_thresholds
 from ibt.tasks.catalogue import Task
 
-# pyeda's Espresso input encoding (the same as ibt.synth.logic): 1 = symbol false, 2 = true, 3 =
-# absent
+# pyeda's Espresso input encoding (as in ibt.synth.logic): 1 = symbol false, 2 = true, 3 = absent
 _FALSE, _TRUE, _ABSENT = 1, 2, 3
 ROUND_DECIMALS = 3  # RE:BT-Espresso's threshold rounding for symbol keys
 

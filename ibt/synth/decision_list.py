@@ -35,8 +35,12 @@ larger. The winner is verified against its tree like every synthesised BT
 **Determinism.** Every search step runs in a fixed order and the search is bounded in Espresso
 *work units* (``max_work``, see :class:`_Budget`), never in seconds: a tree always gives the
 same BT. ``time_limit`` (seconds) is only a safety net: past it the search stops, warns and
-returns the best candidate found so far (still verified). The committed trees use at most a
-third of the work budget and take a few seconds (the test on the largest one asserts both).
+returns the best candidate found so far (still verified). The net covers every step after the
+search too: simplifying and factoring a candidate check the same deadline, and past it a
+candidate is written as its flat decision list (exact as it is, one Sequence per entry), the
+remaining candidates and Imitation-BT's are skipped; so a 1,000-leaf tree stops near its limit
+instead of simplifying for minutes. The committed trees use at most a third of the work budget
+and take a few seconds (the test on the largest one asserts both): the net never bites there.
 """
 
 from __future__ import annotations
@@ -262,7 +266,7 @@ class _Search:
         self.paths = _paths(view)
         self.variables = Variables(t for t, _ in self.paths)
         self.budget = budget
-        self.factorer = Factorer()
+        self.factorer = Factorer(budget.deadline)
         self.espresso: dict[tuple[Term, tuple[int, ...]], list[Term]] = {}
         self.memo: dict[tuple[int, int, Term], list[list[Entry]]] = {}
         self.local: dict[Term, tuple[Variables, int]] = {}
@@ -401,14 +405,21 @@ class _Search:
 
 
 # ----------------------------------------------------------------------- simplification
-def simplify(entries: list[Entry], leaves: list[tuple[Box, int]]) -> list[Entry]:
-    """Drop entries, then literals, one at a time while the list stays exact (fixed order)."""
+def simplify(entries: list[Entry], leaves: list[tuple[Box, int]],
+             deadline: float | None = None) -> list[Entry]:
+    """Drop entries, then literals, one at a time while the list stays exact (fixed order);
+    :class:`SearchTimeout` once ``time.monotonic()`` passes ``deadline``."""
+    def late() -> bool:
+        return deadline is not None and time.monotonic() > deadline
+
     entries = list(entries)
     changed = True
     while changed:
         changed = False
         i = 0
         while i < len(entries) - 1:
+            if late():
+                raise SearchTimeout
             trial = entries[:i] + entries[i + 1:]
             if decides_like(trial, leaves):
                 entries, changed = trial, True
@@ -417,6 +428,8 @@ def simplify(entries: list[Entry], leaves: list[tuple[Box, int]]) -> list[Entry]
         for i in range(len(entries) - 1):
             term, action = entries[i]
             for lit in term:
+                if late():
+                    raise SearchTimeout
                 shorter = tuple(x for x in term if x != lit)
                 trial = [*entries[:i], (shorter, action), *entries[i + 1:]]
                 if decides_like(trial, leaves):
@@ -489,7 +502,8 @@ class Factorer:
     instance serves a whole search.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, deadline: float | None = None) -> None:
+        self.deadline = deadline  # time.monotonic() past which _solve raises SearchTimeout
         self.memo: dict[tuple[Entry, ...], tuple[_N, ...]] = {}
         self.or_memo: dict = {}
         self.guard_memo: dict = {}
@@ -509,6 +523,8 @@ class Factorer:
     def _solve(self, es: tuple[Entry, ...]) -> tuple[_N, ...]:
         if es in self.memo:
             return self.memo[es]
+        if self.deadline is not None and time.monotonic() > self.deadline:
+            raise SearchTimeout
         n = len(es)
         best: list[tuple[int, tuple[_N, ...]]] = [(0, ())] * (n + 1)
         for i in range(n - 1, -1, -1):
@@ -595,28 +611,40 @@ def decision_list_bt(tree: DecisionTreeClassifier, task: Task, *, time_limit: fl
                 lists += [("tree programme", entries) for entries in search.programme(keep)]
     except SearchTimeout:
         stopped = True
-        warnings.warn(f"decision-list search stopped at its {time_limit:g} s safety net; "
-                      "returning the best candidate found so far", stacklevel=2)
     sizes: dict[str, int] = {}
     best: tuple[tuple[int, int], str, Node, list[Entry] | None] | None = None
+    deadline = search.budget.deadline
     for name, entries in lists:
-        if not entries:
+        if not entries or (best is not None and time.monotonic() > deadline):
             continue
-        entries = simplify(entries, leaves)
-        if not decides_like(entries, leaves):  # simplify keeps exactness; never taken
-            continue
-        root = _root(search.factorer(entries))
+        try:
+            entries = simplify(entries, leaves, deadline)
+            if not decides_like(entries, leaves):  # simplify keeps exactness; never taken
+                continue
+            root = _root(search.factorer(entries))
+        except SearchTimeout:  # the safety net: this candidate as its flat (exact) list
+            stopped = True
+            root = _root(_compose("fb", [_guarded([t], a, {}) for t, a in entries]))
         key = (_size(root), _conditions(entries))
         sizes[name] = min(sizes.get(name, key[0]), key[0])
         if best is None or key < best[0]:
             best = (key, name, root, entries)
-    paper = imitation_bt(tree, task, check=False)
-    paper_key = (paper.bt.node_count, paper.bt.node_types()["condition"])
-    sizes["imitation-bt"] = paper_key[0]
-    if best is None or paper_key < best[0]:
-        best = (paper_key, "imitation-bt", paper.bt.root, None)
+    paper = None
+    if time.monotonic() <= deadline:  # past the safety net, Imitation-BT's is not computed
+        paper = imitation_bt(tree, task, check=False)
+        paper_key = (paper.bt.node_count, paper.bt.node_types()["condition"])
+        sizes["imitation-bt"] = paper_key[0]
+        if best is None or paper_key < best[0]:
+            best = (paper_key, "imitation-bt", paper.bt.root, None)
+    else:
+        stopped = True
+    assert best is not None  # the tree-shaped list is never empty
+    if stopped:
+        warnings.warn(f"decision-list search stopped at its {time_limit:g} s safety net; "
+                      "returning the best candidate found so far", stacklevel=2)
     _, winner, root, chosen = best
     if chosen is None:
+        assert paper is not None
         rule_sets, default = paper.rule_sets, paper.default_action
     else:
         rule_sets, default = _rule_sets(chosen), chosen[-1][1]

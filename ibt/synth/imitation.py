@@ -171,7 +171,9 @@ def verify(bt: BehaviorTree, tree: DecisionTreeClassifier, task: Task, *, seed: 
            n_random: int = 20_000) -> int:
     """Raise :class:`NotEquivalentError` unless ``bt`` decides as ``tree`` on every test state.
 
-    Returns the number of states checked.
+    The states are finite: NaN and infinity are refused by every executor, the tree's and the
+    BT's alike (:mod:`ibt.bt.executors`), so finite states are the whole domain on which the two
+    must agree. Returns the number of states checked.
     """
     states = verification_states(tree, task, n_random=n_random, seed=seed)
     expected = CompiledTree(tree).predict(states)

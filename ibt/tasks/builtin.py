@@ -20,6 +20,7 @@ from typing import Any
 from ibt.tasks.settings import (
     ZOO_DQN_NET,
     Clip,
+    EvolveConfig,
     FrontTarget,
     QualityBar,
     RefineConfig,
@@ -127,6 +128,8 @@ MOUNTAINCAR = Task(
     bar=QualityBar(min_return=-130),
     refine=RefineConfig(stages=_SMALL, episodes=10_000),
     refine_sources=4,
+    evolve=EvolveConfig(episodes=8_000, mu=4, lam=12, generation_episodes=10,
+                        refine_episodes=4_000),
     clip=Clip(200, 1, 60),
     front_target=FrontTarget(("dqn",), 98.0, 9, rank=1),
     claim_group="simple",
@@ -154,6 +157,11 @@ LUNARLANDER = Task(
     # change worth its 3,700 episodes in a trial (DQN, seed 0), so it is left out
     refine=RefineConfig(stages=("cma", "cma"), episodes=80_000, cma_generations=130,
                         cma_episodes=24),
+    # Imitation-BT+S: 36,000 episodes of structure search and 16,000 of polish, about 12
+    # CPU-minutes a run here (a trial on DQN seed 0 at 22 leaves before the grid: 24,000
+    # search episodes took 459 CPU-s at 19,000 steps/s)
+    evolve=EvolveConfig(episodes=36_000, mu=4, lam=12, generation_episodes=20,
+                        refine_episodes=16_000),
     clip=Clip(400, 5, 110),
     front_target=FrontTarget(("dqn", "ppo"), 90.0, 100, rank=0),
     claim_group="stochastic",

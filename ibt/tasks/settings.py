@@ -100,6 +100,30 @@ class RefineConfig:
 
 
 @dataclass(frozen=True)
+class EvolveConfig:
+    """Everything that determines a structure search by return (:mod:`ibt.refine.structure`,
+    with the seed trees and the seed); then ``refine_episodes`` of CMA-ES and pruning
+    (:mod:`ibt.refine.by_return`) polish the winner under the same leaf limit."""
+
+    max_leaves: int = 16
+    episodes: int = 60_000  # hard budget of refinement episodes
+    mu: int = 6  # parents kept each generation
+    lam: int = 18  # children per generation
+    generation_episodes: int = 12  # episodes per tree and generation (all trees share them)
+    sigma: float = 0.3  # threshold steps, in spreads of the feature
+    use_expert: bool = True  # "grow" by the expert's labels and "relabel" leaves
+    pool_every: int = 10  # generations between refreshes of the visited-state pool
+    pool_episodes: int = 8
+    selection_episodes: int = 100  # held-out episodes for the final choice
+    finalists: int = 12  # trees compared on the held-out episodes
+    n_envs: int = 64
+    refine_episodes: int = 16_000  # the polish: CMA-ES on thresholds, then free pruning
+
+    def as_params(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
 class QualityBar:
     """When an expert is good enough to count in the claims; one object is both the test
     (:meth:`__call__`) and its text (:meth:`describe`), so the two cannot disagree.

@@ -27,6 +27,7 @@ import numpy as np
 from ibt.paths import DATA_DIR
 from ibt.tasks.settings import (
     Clip,
+    EvolveConfig,
     FrontTarget,
     Hyperparams,
     QualityBar,
@@ -65,6 +66,7 @@ class Task:
     paper_seeds: int = 5  # seeds per cell of the paper grid
     refine: RefineConfig = field(default_factory=RefineConfig)
     refine_sources: int = 1  # how many source trees Imitation-BT+ refines
+    evolve: EvolveConfig | None = None  # Imitation-BT+S's structure-search budget
     clip: Clip | None = None  # filmed by `make animations`
     front_target: FrontTarget | None = None
     claim_group: str | None = None  # "simple" or "stochastic" (the paper's claims)

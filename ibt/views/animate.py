@@ -10,7 +10,9 @@ task's best expert (:func:`best_expert`); the episode is the first of the fixed 
 episodes, so a GIF comes out the same on every run. A BT too large to read in a frame is drawn
 collapsed per action (:func:`ibt.export.pictures.fit_graphviz`).
 
-``python -m ibt.views.animate`` (``make animations``) writes ``figures/anim/<task>.gif``.
+``python -m ibt.views.animate`` (``make animations``) writes ``figures/anim/<task>.gif``. Each
+GIF's comment names the BT file it was drawn from and that file's SHA-256
+(:func:`gif_source`), so a test sees when a committed GIF no longer shows its committed BT.
 """
 
 from __future__ import annotations
@@ -229,6 +231,33 @@ class Film:
         return canvas
 
 
+SOURCE_TAG = "ibt-bt"  #: the GIF comment: "ibt-bt <path under the data dir> sha256=<hex>"
+
+
+def file_sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def source_comment(bt_file: Path, data_dir: Path = DATA_DIR) -> bytes:
+    """The GIF comment naming the BT file (relative to ``data_dir``) and its SHA-256."""
+    relative = Path(bt_file).resolve().relative_to(Path(data_dir).resolve()).as_posix()
+    return f"{SOURCE_TAG} {relative} sha256={file_sha256(bt_file)}".encode()
+
+
+def gif_source(gif: Path) -> tuple[str, str] | None:
+    """(BT file under the data dir, SHA-256) from a GIF's comment; None without one."""
+    from PIL import Image
+
+    with Image.open(gif) as image:
+        comment = image.info.get("comment", b"")
+    parts = comment.decode(errors="replace").split()
+    if len(parts) != 3 or parts[0] != SOURCE_TAG or not parts[2].startswith("sha256="):
+        return None
+    return parts[1], parts[2].removeprefix("sha256=")
+
+
 def filmed_tasks() -> list[Task]:
     """The registered tasks with a clip (``Task.clip``), in registry order."""
     return [t for t in TASKS.values() if t.clip is not None]
@@ -249,7 +278,8 @@ def film(task: Task, out_dir: Path = FIGURES_DIR / "anim", data_dir: Path = DATA
     if clip is None:
         raise ValueError(f"{task.name} has no clip in its catalogue entry (Task.clip)")
     algo = best_expert(task, data_dir)
-    bt = load_json(data_dir / "trees" / task.name / algo / "imitation-bt.json")
+    bt_file = data_dir / "trees" / task.name / algo / "imitation-bt.json"
+    bt = load_json(bt_file)
     movie = Film(task, bt, algo)
     seed = final_seeds(1)[0] if seed is None else seed
     steps = list(episode(task, bt, seed, clip.max_steps))
@@ -270,7 +300,7 @@ def film(task: Task, out_dir: Path = FIGURES_DIR / "anim", data_dir: Path = DATA
     target = Path(out_dir) / f"{task.name}.gif"
     with atomic_target(target) as tmp:
         iio.imwrite(tmp, np.stack(arrays), extension=".gif", plugin="pillow",
-                    duration=durations, loop=0)
+                    duration=durations, loop=0, comment=source_comment(bt_file, data_dir))
     return {"task": task.name, "expert": algo, "path": str(target), "steps": len(steps),
             "frames": len(arrays), "kb": round(target.stat().st_size / 1024),
             "collapsed": movie.collapse, "seconds": round(time.perf_counter() - start, 1)}

@@ -1,0 +1,416 @@
+"""Structure search by return: evolve a small tree's splits, features, thresholds and leaves.
+
+Refinement by return (:mod:`ibt.refine.by_return`, Imitation-BT+) keeps a distilled tree's
+structure: it tunes thresholds and leaf actions and cuts subtrees. MENS-DT-RL (Costa et al.,
+Artificial Intelligence 2024) evolves the structure itself on return and reaches smaller trees
+that land better. This module does that, seeded with distilled trees and helped by the expert
+where reward alone is slow:
+
+* **a (mu + lambda) evolution strategy** over trees of at most ``max_leaves`` leaves. Each
+  generation every parent makes children by one mutation; parents and children are scored side
+  by side on the *same fresh* refinement episodes (common random numbers: a comparison is
+  between trees, not between episode draws, and no seed set can be climbed) and the best
+  ``mu`` survive (fewer leaves break ties). Parents are re-scored every generation, so a lucky
+  score does not survive on luck.
+* **mutations**: move one threshold (in units of its feature's spread over visited states),
+  move all thresholds a little, change a split's feature (a new threshold drawn from visited
+  states), change a leaf's action, replace a subtree by a leaf, grow a leaf into a split.
+* **the expert's help** (optional): a pool of states the current best tree visits is labelled
+  by the expert (DAgger's labels, on the small tree's own state distribution); "grow" then
+  fits the split that best separates the expert's labels among the pool states reaching the
+  leaf (a CART stump), and "relabel" gives a leaf the expert's majority action there.
+* the run's final parents and the best of each generation are compared on held-out selection
+  episodes (disjoint from the refinement episodes and from the final evaluation), and the best
+  is returned.
+
+Deterministic in the seed; the budget is counted in episodes. Trees of different shapes run
+side by side in one batch of environments (:class:`Forest`), the trees decided on the batch.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from sklearn.tree import DecisionTreeClassifier
+from tqdm import tqdm
+
+from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout, selection_seeds
+from ibt.refine.tree_arrays import TreeArrays, _from_nested
+from ibt.tasks.settings import EvolveConfig
+from ibt.tasks.task import Task
+
+#: Held-out selection episodes of the structure search (the run's block of 10,000 seeds:
+#: refinement's own choice uses 5,000 and up, the distillation's below)
+EVOLVE_SELECTION_OFFSET = 7_000
+EVOLVE_SEED_BASE = REFINE_SEED_BASE + 500_000  # its refinement episodes: apart from by_return's
+MUTATIONS = ("threshold", "thresholds", "feature", "action", "prune", "grow", "relabel")
+
+
+@dataclass
+class Evolution:
+    """A structure search's record: the chosen tree, what was tried, what it cost."""
+
+    task: str
+    seed: int
+    config: dict[str, Any]
+    sources: list[TreeArrays] = field(default_factory=list)
+    finalists: list[TreeArrays] = field(default_factory=list)
+    selection_means: list[float] = field(default_factory=list)
+    best_index: int = 0
+    history: list[dict[str, Any]] = field(default_factory=list)  # per generation
+    episodes: int = 0
+    steps: int = 0
+    wall_seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    # environment steps per CPU-second: the search's, and a uniform random policy's stepped by
+    # the same batched rollout in the same run (the physical limit of this machine)
+    steps_per_second: float = 0.0
+    random_steps_per_second: float = 0.0
+
+    @property
+    def best(self) -> TreeArrays:
+        return self.finalists[self.best_index]
+
+    @property
+    def best_tree(self) -> DecisionTreeClassifier:
+        return self.best.to_sklearn()
+
+
+class Forest:
+    """Trees of different shapes decided side by side: ``decide(x, members)`` routes row ``i``
+    through tree ``members[i]`` (float32 features widened to float64, as scikit-learn)."""
+
+    def __init__(self, trees: list[TreeArrays]) -> None:
+        self.trees = trees
+        width = max(t.node_count for t in trees)
+        shape = (len(trees), width)
+        self.feature = np.zeros(shape, dtype=np.int64)
+        self.threshold = np.zeros(shape, dtype=np.float64)
+        self.left = np.zeros(shape, dtype=np.int64)
+        self.right = np.zeros(shape, dtype=np.int64)
+        self.action = np.zeros(shape, dtype=np.int64)
+        self.is_leaf = np.ones(shape, dtype=bool)
+        for i, t in enumerate(trees):
+            n = t.node_count
+            self.feature[i, :n] = np.maximum(t.feature, 0)
+            self.threshold[i, :n] = t.threshold
+            self.left[i, :n] = np.where(t.is_leaf, 0, t.left)
+            self.right[i, :n] = np.where(t.is_leaf, 0, t.right)
+            self.action[i, :n] = t.action
+            self.is_leaf[i, :n] = t.is_leaf
+        self.depth = max(t.depth() for t in trees)
+
+    def __len__(self) -> int:
+        return len(self.trees)
+
+    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+        x = np.asarray(features, dtype=np.float32).astype(np.float64)
+        rows = np.arange(len(x))
+        node = np.zeros(len(x), dtype=np.int64)
+        for _ in range(self.depth):
+            go_left = x[rows, self.feature[members, node]] <= self.threshold[members, node]
+            nxt = np.where(go_left, self.left[members, node], self.right[members, node])
+            node = np.where(self.is_leaf[members, node], node, nxt)
+        return self.action[members, node]
+
+
+class _Budget:
+    """Fresh refinement episodes, counted."""
+
+    def __init__(self, task: Task, seed: int, config: EvolveConfig, bar: Any) -> None:
+        self.task, self.config, self.bar = task, config, bar
+        self.next_seed = EVOLVE_SEED_BASE + 1_000_000 * seed
+        self.used = self.steps = 0
+
+    @property
+    def left(self) -> int:
+        return self.config.episodes - self.used
+
+    def fresh(self, n: int) -> list[int]:
+        seeds = list(range(self.next_seed, self.next_seed + n))
+        self.next_seed += n
+        return seeds
+
+    def score(self, trees: list[TreeArrays], seeds: list[int], *, count: bool = True
+              ) -> np.ndarray:
+        """``(trees, episodes)`` returns, every tree on every seed."""
+        forest, k = Forest(trees), len(seeds)
+
+        def act(obs: np.ndarray, episodes: np.ndarray) -> np.ndarray:
+            return forest.decide(self.task.features(obs), episodes // k)
+
+        result = rollout(self.task, act, [s for _ in trees for s in seeds],
+                         n_envs=self.config.n_envs, indexed=True)
+        if count:
+            self.used += len(trees) * k
+            self.steps += int(result.lengths.sum())
+            self.bar.update(len(trees) * k)
+        return result.returns.reshape(len(trees), k)
+
+    def visit(self, tree: TreeArrays, n_episodes: int) -> np.ndarray:
+        """States the tree visits on ``n_episodes`` fresh episodes (counted)."""
+        states: list[np.ndarray] = []
+        forest = Forest([tree])
+
+        def act(obs: np.ndarray) -> np.ndarray:
+            x = self.task.features(obs)
+            states.append(x)
+            return forest.decide(x, np.zeros(len(x), dtype=np.int64))
+
+        result = rollout(self.task, act, self.fresh(n_episodes), n_envs=n_episodes)
+        self.used += n_episodes
+        self.steps += int(result.lengths.sum())
+        self.bar.update(n_episodes)
+        return np.concatenate(states).astype(np.float32)
+
+
+# --- trees as nested tuples: ("leaf", action) or ("split", feature, threshold, left, right) ---
+
+def nested(tree: TreeArrays, node: int = 0) -> tuple:
+    if tree.is_leaf[node]:
+        return ("leaf", int(tree.action[node]))
+    return ("split", int(tree.feature[node]), float(tree.threshold[node]),
+            nested(tree, int(tree.left[node])), nested(tree, int(tree.right[node])))
+
+
+def arrays(node: tuple, n_features: int, n_actions: int) -> TreeArrays:
+    def weighted(n: tuple) -> tuple:
+        if n[0] == "leaf":
+            return ("leaf", n[1], 1.0)
+        return ("split", n[1], n[2], weighted(n[3]), weighted(n[4]), 1.0)
+
+    return _from_nested(weighted(node), n_features, n_actions).simplified()
+
+
+def _paths(node: tuple, path: tuple = ()) -> list[tuple[tuple, tuple]]:
+    """Every (path, subtree); a path is a tuple of 3 (left) / 4 (right) child positions."""
+    out = [(path, node)]
+    if node[0] == "split":
+        out += _paths(node[3], (*path, 3)) + _paths(node[4], (*path, 4))
+    return out
+
+
+def _replace(node: tuple, path: tuple, new: tuple) -> tuple:
+    if not path:
+        return new
+    head, rest = path[0], path[1:]
+    parts = list(node)
+    parts[head] = _replace(node[head], rest, new)
+    return tuple(parts)
+
+
+def _leaves(node: tuple) -> int:
+    return 1 if node[0] == "leaf" else _leaves(node[3]) + _leaves(node[4])
+
+
+class _Mutator:
+    """One random mutation of a tree, with the visited-state pool and the expert's labels."""
+
+    def __init__(self, task: Task, config: EvolveConfig, rng: np.random.Generator,
+                 expert: Any | None) -> None:
+        self.task, self.config, self.rng, self.expert = task, config, rng, expert
+        self.pool = np.zeros((0, task.n_features), dtype=np.float32)
+        self.labels = np.zeros(0, dtype=np.int64)
+        self.spread = np.ones(task.n_features)
+
+    def refresh(self, states: np.ndarray) -> None:
+        keep = self.rng.permutation(len(states))[:4000]
+        self.pool = states[keep]
+        box = np.asarray(self.task.high, float) - np.asarray(self.task.low, float)
+        floor = np.where(np.isfinite(box) & (box > 0), 1e-3 * box, 1e-3)
+        self.spread = np.maximum(self.pool.astype(np.float64).std(axis=0), floor)
+        if self.expert is not None and self.config.use_expert:
+            self.labels = np.asarray(self.expert.act(self.task.observations(self.pool)),
+                                     dtype=np.int64)
+
+    def _reaching(self, root: tuple, path: tuple) -> np.ndarray:
+        mask = np.ones(len(self.pool), dtype=bool)
+        node = root
+        for step in path:
+            go_left = self.pool[:, node[1]].astype(np.float64) <= node[2]
+            mask &= go_left if step == 3 else ~go_left
+            node = node[step]
+        return mask
+
+    def _threshold_from_pool(self, feature: int, mask: np.ndarray | None = None) -> float:
+        values = self.pool[mask if mask is not None and mask.any() else slice(None), feature]
+        if len(values) == 0:
+            lo, hi = self.task.low[feature], self.task.high[feature]
+            return float(self.rng.uniform(lo, hi))
+        return float(values[self.rng.integers(len(values))])
+
+    def _stump(self, root: tuple, path: tuple, leaf: tuple) -> tuple | None:
+        """The split that best separates the expert's labels among the pool states reaching
+        the leaf (CART's Gini), with the majority label on each side."""
+        mask = self._reaching(root, path)
+        if mask.sum() < 10 or len(self.labels) != len(self.pool):
+            return None
+        stump = DecisionTreeClassifier(max_depth=1, random_state=0)
+        stump.fit(self.pool[mask], self.labels[mask])
+        t = stump.tree_
+        if t.node_count < 3:
+            return None
+        classes = stump.classes_
+        left = ("leaf", int(classes[int(np.argmax(t.value[1, 0]))]))
+        right = ("leaf", int(classes[int(np.argmax(t.value[2, 0]))]))
+        if left[1] == right[1]:
+            return None
+        return ("split", int(t.feature[0]), float(t.threshold[0]), left, right)
+
+    def mutate(self, root: tuple) -> tuple:
+        kind = MUTATIONS[int(self.rng.integers(len(MUTATIONS)))]
+        if kind == "relabel" and (self.expert is None or not self.config.use_expert):
+            kind = "action"
+        nodes = _paths(root)
+        splits = [(p, n) for p, n in nodes if n[0] == "split"]
+        leaves = [(p, n) for p, n in nodes if n[0] == "leaf"]
+        n_actions = self.task.n_actions
+        if kind in ("threshold", "feature", "thresholds", "prune") and not splits:
+            kind = "grow"
+        if kind == "threshold":
+            path, node = splits[int(self.rng.integers(len(splits)))]
+            step = self.rng.normal(0, self.config.sigma) * self.spread[node[1]]
+            return _replace(root, path, ("split", node[1], node[2] + step, node[3], node[4]))
+        if kind == "thresholds":
+            out = root
+            for path, node in splits:
+                current = dict(_paths(out))[path]
+                step = self.rng.normal(0, self.config.sigma / 4) * self.spread[node[1]]
+                out = _replace(out, path, ("split", current[1], current[2] + step,
+                                           current[3], current[4]))
+            return out
+        if kind == "feature":
+            path, node = splits[int(self.rng.integers(len(splits)))]
+            feature = int(self.rng.integers(self.task.n_features))
+            threshold = self._threshold_from_pool(feature, self._reaching(root, path))
+            return _replace(root, path, ("split", feature, threshold, node[3], node[4]))
+        if kind == "action":
+            path, node = leaves[int(self.rng.integers(len(leaves)))]
+            action = int(self.rng.integers(n_actions - 1))
+            action += action >= node[1]
+            return _replace(root, path, ("leaf", action))
+        if kind == "prune":
+            path, node = splits[int(self.rng.integers(len(splits)))]
+            keep = node[3] if self.rng.random() < 0.5 else node[4]
+            return _replace(root, path, keep)
+        if kind == "relabel":
+            path, node = leaves[int(self.rng.integers(len(leaves)))]
+            mask = self._reaching(root, path)
+            if not mask.any():
+                return self.mutate(root)
+            votes = np.bincount(self.labels[mask], minlength=n_actions)
+            return _replace(root, path, ("leaf", int(np.argmax(votes))))
+        # grow
+        if _leaves(root) >= self.config.max_leaves:
+            return self._grow_or_prune(root)
+        return self._grow(root, leaves)
+
+    def _grow(self, root: tuple, leaves: list[tuple[tuple, tuple]]) -> tuple:
+        path, node = leaves[int(self.rng.integers(len(leaves)))]
+        if self.expert is not None and self.config.use_expert and self.rng.random() < 0.7:
+            stump = self._stump(root, path, node)
+            if stump is not None:
+                return _replace(root, path, stump)
+        feature = int(self.rng.integers(self.task.n_features))
+        threshold = self._threshold_from_pool(feature, self._reaching(root, path))
+        other = int(self.rng.integers(self.task.n_actions))
+        children = (node, ("leaf", other)) if self.rng.random() < 0.5 else (("leaf", other), node)
+        return _replace(root, path, ("split", feature, threshold, *children))
+
+    def _grow_or_prune(self, root: tuple) -> tuple:
+        """At the leaf limit, growth must pay for itself: cut a random subtree, then grow."""
+        splits = [(p, n) for p, n in _paths(root) if n[0] == "split"]
+        path, node = splits[int(self.rng.integers(len(splits)))]
+        cut = _replace(root, path, node[3] if self.rng.random() < 0.5 else node[4])
+        leaves = [(p, n) for p, n in _paths(cut) if n[0] == "leaf"]
+        return self._grow(cut, leaves)
+
+
+def _fit(tree: TreeArrays, max_leaves: int) -> TreeArrays:
+    """The tree cut down to ``max_leaves`` (deepest subtrees first) if it is larger."""
+    root = nested(tree)
+    while _leaves(root) > max_leaves:
+        splits = [(p, n) for p, n in _paths(root) if n[0] == "split"]
+        path, node = max(splits, key=lambda pn: (len(pn[0]), pn[0]))
+        root = _replace(root, path, node[3])
+    return arrays(root, tree.n_features, tree.n_actions)
+
+
+def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
+           config: EvolveConfig, seed: int = 0, *, expert: Any | None = None,
+           progress: bool = True) -> Evolution:
+    """Search trees of at most ``config.max_leaves`` leaves by return, from ``sources``."""
+    rng = np.random.default_rng(seed)
+    seeds = [s if isinstance(s, TreeArrays) else TreeArrays.from_sklearn(s) for s in sources]
+    seeds = [_fit(s.simplified(), config.max_leaves) for s in seeds]
+    for s in seeds:
+        if s.n_features != task.n_features:
+            raise ValueError(f"a source tree reads {s.n_features} features, {task.name} has "
+                             f"{task.n_features}")
+    record = Evolution(task.name, seed, config.as_params(), sources=seeds)
+    start, cpu_start = time.perf_counter(), time.process_time()
+    bar = tqdm(total=config.episodes, desc=f"evolve {task.name} s{seed}", unit="ep",
+               disable=not progress, leave=False)
+    budget = _Budget(task, seed, config, bar)
+    mutator = _Mutator(task, config, rng, expert)
+    parents = list(seeds)
+    hall: list[TreeArrays] = []
+    generation = 0
+    per_generation = (config.mu + config.lam) * config.generation_episodes
+    while budget.left >= per_generation + config.pool_episodes:
+        if generation % config.pool_every == 0:
+            mutator.refresh(budget.visit(parents[0], config.pool_episodes))
+        children = []
+        for i in range(config.lam):
+            parent = parents[i % len(parents)]
+            child = arrays(mutator.mutate(nested(parent)), task.n_features, task.n_actions)
+            if child.n_leaves <= config.max_leaves:
+                children.append(child)
+        contenders = parents + children
+        means = budget.score(contenders, budget.fresh(config.generation_episodes)).mean(axis=1)
+        order = sorted(range(len(contenders)),
+                       key=lambda i: (-means[i], contenders[i].n_leaves, i))
+        parents = [contenders[i] for i in order[:config.mu]]
+        hall.append(parents[0])
+        record.history.append({"generation": generation, "best": round(float(means[order[0]]), 2),
+                               "mean": round(float(means.mean()), 2),
+                               "leaves": parents[0].n_leaves})
+        bar.set_postfix(best=f"{means[order[0]]:.0f}", leaves=parents[0].n_leaves)
+        generation += 1
+    bar.close()
+    # finalists: the last parents, the seeds and the latest generations' best, held out
+    pool: list[TreeArrays] = []
+    for t in parents + hall[::-1] + seeds:
+        if all(t.node_count != u.node_count or not np.array_equal(t.threshold, u.threshold)
+               or not np.array_equal(t.action, u.action) for u in pool):
+            pool.append(t)
+        if len(pool) >= config.finalists:
+            break
+    held_out = selection_seeds(config.selection_episodes, seed, offset=EVOLVE_SELECTION_OFFSET)
+    scores = budget.score(pool, held_out, count=False).mean(axis=1)
+    record.finalists = pool
+    record.selection_means = [float(s) for s in scores]
+    record.best_index = max(range(len(pool)), key=lambda i: (scores[i], -pool[i].n_leaves, -i))
+    record.episodes, record.steps = budget.used, budget.steps
+    record.wall_seconds = time.perf_counter() - start
+    record.cpu_seconds = time.process_time() - cpu_start
+    record.steps_per_second = record.steps / max(record.cpu_seconds, 1e-9)
+    record.random_steps_per_second = _random_speed(task, config, seed)
+    return record
+
+
+def _random_speed(task: Task, config: EvolveConfig, seed: int) -> float:
+    """Environment steps per CPU-second of a uniform random policy, stepped by the same
+    batched rollout (episode seeds of their own, not counted in the budget)."""
+    rng = np.random.default_rng(seed)
+    cpu = time.process_time()
+    result = rollout(task, lambda obs: rng.integers(task.n_actions, size=len(obs)),
+                     [EVOLVE_SEED_BASE - 1000 + i for i in range(4 * config.n_envs)],
+                     n_envs=config.n_envs)
+    return float(result.lengths.sum() / max(time.process_time() - cpu, 1e-9))
+
+
+__all__ = ["Evolution", "EvolveConfig", "Forest", "evolve"]

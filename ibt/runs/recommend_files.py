@@ -1,0 +1,226 @@
+"""The files of ``python -m ibt pipeline``: ``bt.json``, ``bt.xml``, ``bt.png``, ``front.png``
+and ``report.md`` (:func:`write_outputs`), each written whole or not at all."""
+
+from __future__ import annotations
+
+import shlex
+from pathlib import Path
+from typing import Any
+
+from ibt.runs.recommend import Recommendation
+
+OUTPUTS = ("bt.json", "bt.xml", "bt.png", "front.png", "report.md")
+
+
+# ---------------------------------------------------------------------------- the BT as rules
+def _guard(bt: Any, node: Any) -> str | None:
+    """A condition-only subtree as a boolean expression (None: it acts)."""
+    from ibt.bt.model import Condition, Fallback, Inverter, Sequence
+
+    if isinstance(node, Condition):
+        return bt.label(node, precision=6)
+    if isinstance(node, Inverter):
+        inner = _guard(bt, node.child)
+        return None if inner is None else f"not ({inner})"
+    if isinstance(node, Sequence | Fallback):
+        parts = [_guard(bt, c) for c in node.children]
+        if any(p is None for p in parts):
+            return None
+        joiner = " and " if isinstance(node, Sequence) else " or "
+        return parts[0] if len(parts) == 1 else "(" + joiner.join(parts) + ")"  # type: ignore
+    return None
+
+
+def _rules(bt: Any, node: Any, guards: tuple[str, ...]) -> list[tuple[tuple[str, ...], str]] | None:
+    """First-match rules (guards, action) of an acting subtree; None for shapes without them."""
+    from ibt.bt.model import Action, Fallback, Sequence
+
+    if isinstance(node, Action):
+        return [(guards, bt.action_names[node.action])]
+    if isinstance(node, Fallback):
+        out: list[tuple[tuple[str, ...], str]] = []
+        for child in node.children:
+            rules = _rules(bt, child, guards)
+            if rules is None:
+                return None
+            out += rules
+        return out
+    if isinstance(node, Sequence) and node.children:
+        *conditions, last = node.children
+        texts = [_guard(bt, c) for c in conditions]
+        if any(t is None for t in texts):
+            return None
+        return _rules(bt, last, guards + tuple(texts))  # type: ignore[arg-type]
+    return None
+
+
+def rules_text(bt: Any) -> str:
+    """The BT as an ordered list of rules (the first that holds decides), or as an indented
+    outline when its shape has no such reading."""
+    rules = _rules(bt, bt.root, ())
+    if rules is not None:
+        lines = []
+        for i, (guards, action) in enumerate(rules, 1):
+            when = " and ".join(guards) if guards else "otherwise"
+            lines.append(f"{i}. {'if ' + when + ': ' if guards else 'otherwise: '}{action}")
+        return "\n".join(lines)
+
+    def outline(node: Any, depth: int) -> list[str]:
+        lines = ["  " * depth + bt.label(node, precision=6)]
+        for child in getattr(node, "children", ()):
+            lines += outline(child, depth + 1)
+        return lines
+
+    return "\n".join(outline(bt.root, 0))
+
+
+# ---------------------------------------------------------------------------------- front
+def draw_front(rec: Recommendation, path: Path) -> None:
+    """Retention against BT nodes, every candidate, the target and the recommendation."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ibt.files import atomic_target
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    for stage, marker in (("distilled", "o"), ("refined", "s")):
+        points = [c for c in rec.candidates if c.stage == stage]
+        ax.scatter([c.bt_nodes for c in points], [c.retention for c in points], marker=marker,
+                   label=f"{stage} (leaf limits {', '.join(str(c.leaf_limit) for c in points)})",
+                   alpha=0.8)
+    ax.axhline(100 * rec.keep, color="grey", linestyle="--", linewidth=1,
+               label=f"target: {100 * rec.keep:.0f} % of the agent")
+    ax.scatter([rec.chosen.bt_nodes], [rec.chosen.retention], s=220, facecolors="none",
+               edgecolors="crimson", linewidths=2, label="recommended")
+    ax.set_xscale("log")
+    ax.set_xlabel("BT nodes (smallest verified BT of each tree)")
+    ax.set_ylabel("retention, % (0 random, 100 agent)")
+    ax.set_title(f"{rec.task.name}, {rec.algo} agent: choice episodes", fontsize=10)
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    with atomic_target(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------------- report
+def _interval(returns: list[float]) -> str:
+    from ibt.report.stats import bootstrap_ci, interval_label
+
+    low, high = bootstrap_ci(returns)
+    return f"[{low:.2f}, {high:.2f}] ({interval_label('ci', len(returns), 'episode')})"
+
+
+def commands(rec: Recommendation, out: Path) -> list[str]:
+    """Commands that reproduce the run and check its BT."""
+    task, q = rec.task.name, shlex.quote
+    again = "python -m ibt " + shlex.join(rec.argv) if rec.argv else (
+        f"python -m ibt pipeline {task} {rec.algo} --checkpoint {q(str(rec.checkpoint))} "
+        f"-o {q(str(out))} --keep {rec.keep} --budget {rec.budget.text} --seed {rec.seed}")
+    env = list(dict.fromkeys([*rec.env_modules, *filter(None, [rec.task.setup_module])]))
+    module = "".join(f" --env-module {q(m)}" for m in env)
+    bt = q(str(out / "bt.json"))
+    return [again,
+            f"python -m ibt evaluate {bt} --task {task}{module} --episodes {rec.episodes}"
+            "  # the choice episodes",
+            f"python -m ibt run-btcpp {q(str(out / 'bt.xml'))} --task {task}{module}"]
+
+
+def next_step(rec: Recommendation) -> str:
+    """What to try when the target was missed."""
+    best = rec.chosen
+    if rec.agent.mean - rec.random.mean <= 1e-9:
+        return ("the agent does no better than the random policy on these episodes: train it "
+                "further before distilling it")
+    if best.leaf_limit == max(rec.leaf_limits):
+        bigger = ",".join(str(v) for v in (*rec.leaf_limits, 2 * max(rec.leaf_limits),
+                                           4 * max(rec.leaf_limits)))
+        return (f"the best tree is at the largest leaf limit ({best.leaf_limit}): allow larger "
+                f"trees with `--leaves {bigger}`, and raise the budget (`--budget 4x`)")
+    return ("raise the budget (`--budget 4x`: more expert labels and refinement episodes); if "
+            "that does not help, the agent may need features a small axis-aligned tree cannot "
+            "read (add them to your environment's observation)")
+
+
+def report_text(rec: Recommendation, out: Path) -> str:
+    """``report.md``."""
+    c, keep = rec.chosen, 100 * rec.keep
+    if rec.met:
+        verdict = (f"**Target met**: the recommended BT keeps {rec.retention:.1f} % of the agent "
+                   f"(target {keep:.0f} %).")
+    elif rec.met_on_choice:
+        verdict = (f"**Target missed**: the smallest BT that kept {keep:.0f} % of the agent on "
+                   f"the choice episodes ({c.retention:.1f} %) keeps {rec.retention:.1f} % on the "
+                   f"confirmation episodes. Next: {next_step(rec)}.")
+    else:
+        verdict = (f"**Target missed**: no BT kept {keep:.0f} % of the agent on the choice "
+                   f"episodes; the best one ({c.retention:.1f} % there) keeps "
+                   f"{rec.retention:.1f} % on the confirmation episodes. Next: "
+                   f"{next_step(rec)}.")
+    rows = ["| leaf limit | stage | leaves | BT nodes | smallest BT by | mean return | "
+            "retention % |", "|---|---|---|---|---|---|---|"]
+    for cand in rec.candidates:
+        mark = " **(recommended)**" if cand is c else ""
+        rows.append(f"| {cand.leaf_limit} | {cand.stage}{mark} | {cand.leaves} | "
+                    f"{cand.bt_nodes} | {cand.bt_method} | {cand.mean_return:.2f} | "
+                    f"{cand.retention:.1f} |")
+    returns = ["| policy | mean return | interval of the mean |", "|---|---|---|"]
+    for name, r in (("agent", rec.agent), ("recommended BT", rec.bt), ("random", rec.random)):
+        returns.append(f"| {name} | {r.mean:.2f} | {_interval(r.returns)} |")
+    sizes = ", ".join(f"{m} {bt.node_count}" for m, bt in c.bts.items())
+    cache = (rec.cache_dir.relative_to(out) if rec.cache_dir and rec.cache_dir.is_relative_to(out)
+             else rec.cache_dir)
+    lines = [
+        f"# A behavior tree for {rec.task.name}'s {rec.algo} agent", "",
+        verdict, "",
+        f"Recommended: a **{c.bt_nodes}-node BT** ({c.bt_method}) of the {c.stage} tree at "
+        f"leaf limit {c.leaf_limit} ({c.leaves} leaves); every synthesiser's BT of that tree, "
+        f"each verified to decide exactly as it does: {sizes} nodes.", "",
+        "## Returns on the confirmation episodes", "",
+        f"{rec.episodes} held-out episodes (seeds {rec.bt.first_seed} to "
+        f"{rec.bt.first_seed + rec.episodes - 1}), never used to distil, refine or choose. "
+        f"Retention is random-normalised: 0 % is the uniform random policy, 100 % the agent, "
+        f"both measured here on the same episodes.", "",
+        *returns, "",
+        f"Retention: **{rec.retention:.1f} %** (target {keep:.0f} %).", "",
+        "## The front (choice episodes)", "",
+        f"Every candidate on {rec.episodes} other held-out episodes (seeds "
+        f"{rec.bt.first_seed - rec.episodes} to {rec.bt.first_seed - 1}; agent "
+        f"{rec.agent_choice:.2f}, random {rec.random_choice:.2f}); the recommendation is the "
+        f"smallest BT at or above the target there, or the best one when none is. "
+        "Distilled trees come from Imitation-BT's interactive loop at each leaf limit; refined "
+        "ones from refinement by return (thresholds, leaf actions, pruning) on other episodes.",
+        "", *rows, "", "![front](front.png)", "",
+        "## The BT as rules (the first rule that holds decides)", "",
+        "```", rules_text(c.bt), "```", "", "![the BT](bt.png)", "",
+        "## Files", "",
+        "`bt.json` (this package's BT format), `bt.xml` (BehaviorTree.CPP v4, portable "
+        f"flavour), `bt.png`/`bt.svg` (drawing), `front.png`, this report; `{cache}` holds "
+        "every step, so a rerun with a larger budget repeats only what changed.", "",
+        "## Reproduce", "",
+        f"Checkpoint `{rec.checkpoint}` (SHA-256 prefix {rec.checkpoint_sha256}), seed "
+        f"{rec.seed}, budget {rec.budget.text}, leaf limits "
+        f"{', '.join(map(str, rec.leaf_limits))}; the same command on the same machine gives "
+        "the same files.", "",
+        "```bash", *commands(rec, out), "```", ""]
+    return "\n".join(lines)
+
+
+def write_outputs(rec: Recommendation, out: str | Path) -> list[Path]:
+    """Write the five files (and ``bt.svg``) into ``out``; returns their paths."""
+    from ibt.bt.json_io import save_json
+    from ibt.export.btcpp import to_btcpp_xml
+    from ibt.export.pictures import draw_bt
+    from ibt.files import atomic_write_text
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    bt = rec.chosen.bt
+    save_json(bt, out / "bt.json")
+    atomic_write_text(out / "bt.xml", to_btcpp_xml(bt))
+    draw_bt(bt, out / "bt", title=f"{rec.task.name}: {bt.node_count}-node BT")
+    draw_front(rec, out / "front.png")
+    atomic_write_text(out / "report.md", report_text(rec, out))
+    return [out / name for name in OUTPUTS]

@@ -1,0 +1,190 @@
+"""Imitation-BT+S on the front: structure search by return, then a polish, cached per run.
+
+Beyond the paper (issue 22). For one task, expert, seed and leaf limit:
+
+1. **seed trees**: the four paper methods' grid trees and Imitation-BT+'s tree at the task's
+   budget (a fixed set: the same cells whatever else the cache holds);
+2. **structure search** (:func:`ibt.refine.structure.evolve`): splits, features, thresholds and
+   leaves evolved on return under the leaf limit, helped by the expert's labels on the states
+   the small trees visit;
+3. **polish** (:func:`ibt.refine.by_return.refine`): CMA-ES on the winner's thresholds, then
+   pruning that costs no return, each compared on held-out episodes.
+
+Its budget is the task's catalogue entry (``Task.evolve``), in episodes; a run records its CPU
+seconds and environment steps. The anchors' protocol, 1,000 final episodes of the committed BT
+with the share of episodes at or above a return, is :func:`protocol_evaluation`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ibt.bt.model import BehaviorTree
+from ibt.evaluate.rollouts import final_seeds, rollout
+from ibt.experts.expert import expert_path, load_expert
+from ibt.profiles import Config
+from ibt.refine.by_return import Refinement, refine
+from ibt.refine.structure import Evolution, evolve
+from ibt.runs.cache import load_or_compute
+from ibt.runs.front import SOURCE_METHODS, STRUCTURE, plus_run, source_run
+from ibt.runs.grid import _bt_digest, tree_digest
+from ibt.tasks.catalogue import get_task
+from ibt.tasks.settings import EvolveConfig, RefineConfig
+from ibt.tasks.task import Task
+
+__all__ = ["STRUCTURE", "evolve_cached", "protocol_evaluation", "structure_run"]
+
+
+def evolve_config(cfg: Config, task: Task, max_leaves: int) -> EvolveConfig:
+    """The task's structure-search budget at a leaf limit, shrunk to seconds under ``smoke``."""
+    config = replace(task.evolve or EvolveConfig(), max_leaves=max_leaves)
+    if cfg.profile == "smoke":
+        config = replace(config, episodes=240, mu=2, lam=4, generation_episodes=2,
+                         pool_episodes=2, selection_episodes=3, finalists=3, n_envs=8,
+                         refine_episodes=60)
+    return config
+
+
+def polish_config(cfg: Config, config: EvolveConfig) -> RefineConfig:
+    """CMA-ES on the thresholds, then free pruning, under the same leaf limit."""
+    polish = RefineConfig(stages=("cma", "prune"), episodes=config.refine_episodes,
+                          cma_generations=400, cma_episodes=16, max_leaves=config.max_leaves,
+                          selection_episodes=config.selection_episodes)
+    if cfg.profile == "smoke":
+        polish = replace(polish, cma_generations=2, cma_episodes=2, cma_popsize=4,
+                         sweep_episodes=2, sweep_rounds=1, selection_episodes=3, n_envs=8)
+    return polish
+
+
+def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
+    """Imitation-BT+'s tree at the task's budget, then the four paper methods' grid trees."""
+    trees = [plus_run(cfg, task, algo, seed, None).tree]
+    return trees + [source_run(cfg, task, algo, m, seed, None).best_tree for m in SOURCE_METHODS]
+
+
+def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int
+                  ) -> Evolution:
+    """The structure search of one run (cached on its seed trees and settings)."""
+    spec = get_task(task)
+    config = evolve_config(cfg, spec, max_leaves)
+    sources = seed_trees(cfg, spec, algo, seed)
+    path = expert_path(spec, algo, cfg.experts_dir)
+    params = {"task": spec.name, "algo": algo, "seed": seed,
+              "sources": [tree_digest(t) for t in sources], "config": config.as_params()}
+
+    def compute() -> Evolution:
+        expert = load_expert(spec, algo, path) if config.use_expert else None
+        return evolve(sources, spec, config, seed, expert=expert, progress=cfg.progress)
+
+    return load_or_compute("evolve", params, compute, cache_dir=cfg.cache_dir,
+                           codec="evolution", refresh=cfg.refresh)
+
+
+@dataclass(frozen=True)
+class StructureResult:
+    """Imitation-BT+S for one task, expert, seed and leaf limit, with what it cost."""
+
+    evolution: Evolution
+    polish: Refinement
+
+    @property
+    def tree(self) -> Any:
+        return self.polish.best_tree
+
+    @property
+    def cpu_seconds(self) -> float:
+        return self.evolution.cpu_seconds + self.polish.cpu_seconds
+
+    @property
+    def episodes(self) -> int:
+        return self.evolution.episodes + self.polish.episodes
+
+    @property
+    def steps(self) -> int:
+        return self.evolution.steps + self.polish.steps
+
+
+def structure_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int
+                  ) -> StructureResult:
+    """Structure search, then the polish of its winner (each cached)."""
+    spec = get_task(task)
+    evolution = evolve_cached(cfg, spec, algo, seed, max_leaves)
+    tree = evolution.best_tree
+    polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
+    params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": STRUCTURE,
+              "tree": tree_digest(tree), "config": polish.as_params()}
+
+    def compute() -> Refinement:
+        return refine(tree, spec, polish, seed, progress=cfg.progress)
+
+    refined = load_or_compute("refine", params, compute, cache_dir=cfg.cache_dir,
+                              codec="refinement", refresh=cfg.refresh)
+    return StructureResult(evolution, refined)
+
+
+def protocol_evaluation(cfg: Config, task: str | Task, bt: BehaviorTree, episodes: int = 1000,
+                        threshold: float | None = 200.0) -> dict[str, Any]:
+    """The anchors' protocol: the BT rolled out from its own JSON on ``episodes`` final
+    episodes (seeds disjoint from every training, refinement and selection seed): mean,
+    standard deviation and the share of episodes at or above ``threshold`` (cached)."""
+    spec = get_task(task)
+    bt = BehaviorTree.from_json(bt.to_json())  # exactly what the committed file holds
+    params = {"task": spec.name, "episodes": episodes, "threshold": threshold,
+              "bt": _bt_digest(bt)}
+
+    def compute() -> dict[str, Any]:
+        from ibt.evaluate.policies import BTPolicy
+
+        result = rollout(spec, BTPolicy(spec, bt).act, final_seeds(episodes))
+        share = None if threshold is None else float(np.mean(result.returns >= threshold))
+        return {"episodes": episodes, "mean_return": result.mean, "std_return": result.std,
+                "share_at_threshold": share, "threshold": threshold}
+
+    return load_or_compute("protocol", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                           refresh=cfg.refresh)
+
+
+def structure_points(experts: dict[str, list[str]], leaves: dict[str, list[int]],
+                     seeds: list[int]) -> list[Any]:
+    """Imitation-BT+S for each task's experts at each of its leaf limits (front points)."""
+    from ibt.runs.front import Point
+
+    return [Point(task, algo, STRUCTURE, s, L) for task, algos in experts.items()
+            for algo in algos for L in leaves.get(task, []) for s in seeds]
+
+
+def protocol_table(cfg: Config, table: Any, threshold: dict[str, float] | None = None,
+                   episodes: int = 1000) -> Any:
+    """Every Imitation-BT+S run of the front table on the anchors' protocol: its smallest
+    verified BT (rebuilt from the cached document) on ``episodes`` final episodes; one row
+    per run, with the share of episodes at or above the task's ``threshold`` (LunarLander:
+    200, the "solved" landing)."""
+    import pandas as pd
+
+    from ibt.runs.front import ANCHORS, bt_sizes
+
+    threshold = threshold or {}
+    rows = []
+    for run in table[table["method"] == STRUCTURE].itertuples(index=False):
+        found = structure_run(cfg, run.task, run.expert, int(run.seed), int(run.max_leaf_nodes))
+        bt = BehaviorTree.from_dict(bt_sizes(cfg, run.task, found.tree)["bt"])
+        result = protocol_evaluation(cfg, run.task, bt, episodes, threshold.get(run.task))
+        anchor = next((a for a in ANCHORS if a.task == run.task and a.max_bt_nodes), None)
+        rows.append({"task": run.task, "expert": run.expert, "max_leaf_nodes": run.max_leaf_nodes,
+                     "seed": run.seed, "tree_leaves": run.tree_leaves, "bt_nodes": bt.node_count,
+                     "episodes": result["episodes"], "mean_return": result["mean_return"],
+                     "std_return": result["std_return"],
+                     "share_at_threshold": result["share_at_threshold"],
+                     "threshold": result["threshold"],
+                     "cpu_seconds": run.refine_seconds, "env_steps": run.refine_steps,
+                     "search_steps_per_second": round(found.evolution.steps_per_second),
+                     "random_steps_per_second": round(found.evolution.random_steps_per_second),
+                     "anchor": anchor.source if anchor else "",
+                     "anchor_leaves": anchor.leaves if anchor else None,
+                     "anchor_mean_return": anchor.mean_return if anchor else None,
+                     "anchor_max_bt_nodes": anchor.max_bt_nodes if anchor else None,
+                     "anchor_min_share": anchor.min_share if anchor else None})
+    return pd.DataFrame(rows)

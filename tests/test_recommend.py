@@ -1,0 +1,161 @@
+"""``python -m ibt pipeline``: from a user's own agent to a recommended BT, its files and report.
+
+Two user tasks written in modules (``tests.fixtures.toy_line``: one feature, gymnasium names
+only; ``tests.fixtures.toy_cart``: two features, a registered task with readable names), each
+with a tiny PPO agent trained here, run under the smoke budget."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from ibt.cli import main
+from ibt.runs.recommend import Budget, Candidate, choose, held_out, parse_budget
+
+pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
+FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
+
+
+@pytest.fixture(scope="module")
+def agents(tmp_path_factory):
+    """A small PPO checkpoint for each toy task (seconds; quality does not matter here)."""
+    import importlib
+
+    for module in ("tests.fixtures.toy_line", "tests.fixtures.toy_cart"):  # the users' modules
+        importlib.import_module(module)
+    from ibt.experts.expert import train_expert
+    from ibt.tasks.catalogue import resolve_task
+    from ibt.tasks.settings import hp
+
+    root = tmp_path_factory.mktemp("agents")
+    line = replace(resolve_task("ToyLine-v0"),
+                   experts=(("ppo", hp(1024, 1, n_steps=256, batch_size=64, gamma=0.9)),))
+    train_expert(line, "ppo", root / "line.zip", progress=False)
+    train_expert(resolve_task("ToyCart-v0"), "ppo", root / "cart.zip", timesteps=2048,
+                 progress=False)
+    return root
+
+
+def _run(argv: list[str]) -> int:
+    return main([str(a) for a in argv])
+
+
+def test_pipeline_writes_its_files_and_a_report_that_reproduces_it(agents, tmp_path, capsys):
+    out = tmp_path / "line"
+    argv = ["pipeline", "ToyLine-v0", "ppo", "--env-module", "tests.fixtures.toy_line",
+            "--checkpoint", agents / "line.zip", "-o", out, "--budget", "smoke", "--quiet"]
+    assert _run(argv) == 0
+    said = capsys.readouterr().out
+    assert "recommended a" in said and "report.md" in said
+    assert all((out / name).stat().st_size > 0 for name in FILES)
+    report = (out / "report.md").read_text()
+    assert ("**Target met**" in report) != ("**Target missed**" in report)
+    if "missed" in report.split("\n")[2]:
+        assert "Next:" in report
+    assert "95 % percentile bootstrap CI over 5 episodes" in report  # intervals named
+    assert "otherwise:" in report  # the BT as rules
+    # the BT is the one the report's rules describe, and the XML the engine reads is its own
+    from ibt.bt.json_io import load_json
+    from ibt.export.btcpp import to_btcpp_xml
+
+    bt = load_json(out / "bt.json")
+    assert (out / "bt.xml").read_text() == to_btcpp_xml(bt)
+    assert f"**{bt.node_count}-node BT**" in report
+    # the first command of the report, run from scratch (no cache), writes the same BT
+    command = report.split("```bash\n")[1].split("\n")[0]
+    assert command.startswith("python -m ibt pipeline ")
+    first = (out / "bt.json").read_bytes()
+    shutil.rmtree(out)
+    assert _run(shlex.split(command)[3:]) == 0
+    assert (out / "bt.json").read_bytes() == first
+    assert (out / "report.md").read_text() == report
+
+
+def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):
+    from ibt.evaluate.policies import BTPolicy
+    from ibt.evaluate.rollouts import retention_norm, rollout
+    from ibt.runs.recommend import recommend
+    from ibt.synth.imitation import verify
+    from ibt.tasks.catalogue import resolve_task
+
+    task = resolve_task("ToyCart-v0")
+    rec = recommend(task, "ppo", agents / "cart.zip", budget=parse_budget("smoke"),
+                    leaf_limits=(4, 8), cache_dir=tmp_path / "cache", progress=False)
+    assert [(c.leaf_limit, c.stage) for c in rec.candidates] == [
+        (4, "distilled"), (4, "refined"), (8, "distilled"), (8, "refined")]
+    for c in rec.candidates:  # every synthesiser's BT decides as its tree
+        for bt in c.bts.values():
+            verify(bt, c.tree, task)
+    # the confirmation numbers are those of fresh episodes, not the choice episodes
+    seeds = held_out(rec.episodes, 1)
+    assert rec.bt.first_seed == seeds[0] and seeds[0] > held_out(rec.episodes, 0)[-1]
+    again = rollout(task, BTPolicy(task, rec.chosen.bt).act, seeds)
+    assert np.allclose(again.returns, rec.bt.returns)
+    assert rec.retention == pytest.approx(retention_norm(again.mean, rec.agent.mean,
+                                                         rec.random.mean))
+    from ibt.runs.recommend_files import rules_text, write_outputs
+
+    write_outputs(rec, tmp_path / "cart")
+    assert set(FILES) <= {p.name for p in (tmp_path / "cart").iterdir()}
+    names = set(task.feature_names) | set(task.action_names)
+    assert any(name in rules_text(rec.chosen.bt) for name in names)
+
+
+def _candidate(nodes: int, retention: float) -> Candidate:
+    from ibt.bt.model import Action, BehaviorTree, Selector
+
+    root = Selector(tuple(Action(0) for _ in range(nodes - 1)))
+    bt = BehaviorTree(root, ("x",), ("a",))
+    return Candidate(4, "distilled", None, {"imitation-bt": bt}, 0.0, 0.0, retention)
+
+
+def test_the_smallest_bt_that_keeps_the_target_is_chosen_else_the_best():
+    small, mid, big = _candidate(3, 90.0), _candidate(6, 96.0), _candidate(9, 99.0)
+    assert choose([big, small, mid], 0.95) == (mid, True)
+    assert choose([big, small, mid], 0.999) == (big, False)
+    tie = _candidate(6, 97.0)
+    assert choose([mid, tie], 0.95)[0] is tie  # same size: the higher retention
+
+
+def test_budget_forms():
+    assert parse_budget("smoke").smoke
+    assert parse_budget("2x") == Budget("2x", scale=2.0)
+    assert parse_budget("40000").refine_episodes == 40000
+    for bad in ("fast", "0x", "-3", "5"):
+        with pytest.raises(ValueError, match="--budget"):
+            parse_budget(bad)
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["--keep", "1.5"], "--keep: must be in (0, 1]"),
+    (["--budget", "lots"], "--budget: expected smoke"),
+    (["--leaves", "1,4"], "--leaves: leaf limits must be at least 2"),
+    (["--checkpoint", "missing.zip"], "no SB3 checkpoint at missing.zip"),
+])
+def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, extra, says):
+    out = tmp_path / "out"
+    argv = ["pipeline", "ToyLine-v0", "ppo", "--env-module", "tests.fixtures.toy_line",
+            "-o", str(out), *extra]
+    if "--checkpoint" not in extra:
+        argv += ["--checkpoint", str(tmp_path / "x.zip")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_the_report_is_plain_data_of_the_run(agents, tmp_path):
+    from ibt.runs.recommend import as_facts, recommend
+    from ibt.tasks.catalogue import resolve_task
+
+    rec = recommend(resolve_task("ToyLine-v0"), "ppo", agents / "line.zip",
+                    budget=parse_budget("smoke"), leaf_limits=(4,), episodes=3,
+                    cache_dir=tmp_path / "cache", progress=False)
+    facts = json.loads(json.dumps(as_facts(rec)))
+    assert facts["episodes"] == 3 and facts["leaf_limits"] == [4]
+    assert facts["met"] == (facts["met_on_choice"] and facts["retention"] >= 95.0)

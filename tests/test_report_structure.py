@@ -1,0 +1,47 @@
+"""The Imitation-BT+S table of the report: verdicts against the anchor's bar, from the CSV."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from ibt.report.markdown import structure_markdown
+from ibt.report.stats import Results
+
+ANCHOR = {"anchor": "MENS-DT-RL", "anchor_leaves": 22, "anchor_mean_return": 240.6,
+          "anchor_max_bt_nodes": 45, "anchor_min_share": 0.90}
+
+
+def _rows(means: list[float], nodes: int, share: float, limit: int = 22) -> list[dict]:
+    return [{"task": "LunarLander-v3", "expert": "dqn", "max_leaf_nodes": limit, "seed": s,
+             "tree_leaves": limit, "bt_nodes": nodes, "episodes": 1000, "mean_return": m,
+             "std_return": 50.0, "share_at_threshold": share, "threshold": 200.0,
+             "cpu_seconds": 600.0, "env_steps": 10**7, "search_steps_per_second": 20000,
+             "random_steps_per_second": 40000, **ANCHOR} for s, m in enumerate(means)]
+
+
+def _table(tmp_path, rows: list[dict]) -> str:
+    (tmp_path / "results").mkdir(exist_ok=True)
+    pd.DataFrame(rows).to_csv(tmp_path / "results" / "front_protocol.csv", index=False)
+    text = structure_markdown(Results(tmp_path))
+    assert text is not None
+    return text
+
+
+def test_a_run_above_the_anchor_at_its_size_is_met(tmp_path):
+    text = _table(tmp_path, _rows([245.0, 250.0, 242.0], nodes=41, share=0.93))
+    assert text.splitlines()[-1].endswith("| met |")
+
+
+def test_too_many_nodes_or_too_few_good_landings_is_missed(tmp_path):
+    assert _table(tmp_path, _rows([250.0] * 3, nodes=60, share=0.95)).endswith("| missed |")
+    assert _table(tmp_path, _rows([250.0] * 3, nodes=40, share=0.85)).endswith("| missed |")
+    assert _table(tmp_path, _rows([230.0] * 3, nodes=40, share=0.95)).endswith("| missed |")
+
+
+def test_a_limit_above_the_anchor_size_is_measured_not_judged(tmp_path):
+    text = _table(tmp_path, _rows([250.0] * 3, nodes=60, share=0.95, limit=32))
+    assert text.endswith("| measured |")
+
+
+def test_absent_results_give_none(tmp_path):
+    assert structure_markdown(Results(tmp_path)) is None

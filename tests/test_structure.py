@@ -1,0 +1,64 @@
+"""Structure search by return: the batched forest decides as each tree, mutations stay within
+the leaf limit, and a run is deterministic in its seed."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from sklearn.tree import DecisionTreeClassifier
+
+import ibt
+from ibt.refine.structure import Forest, _Mutator, arrays, evolve, nested
+from ibt.refine.tree_arrays import TreeArrays
+from ibt.tasks.settings import EvolveConfig
+
+
+def _tree(seed: int, leaves: int, n_features: int = 4, n_actions: int = 3) -> TreeArrays:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(300, n_features)).astype(np.float32)
+    y = rng.integers(n_actions, size=300)
+    fit = DecisionTreeClassifier(max_leaf_nodes=leaves, random_state=seed).fit(x, y)
+    return TreeArrays.from_sklearn(fit)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 10**6), st.integers(2, 12)), min_size=1, max_size=5),
+       st.integers(0, 10**6))
+def test_forest_decides_as_each_tree(specs, seed):
+    trees = [_tree(s, leaves) for s, leaves in specs]
+    x = np.random.default_rng(seed).normal(size=(200, 4)).astype(np.float32)
+    members = np.arange(200) % len(trees)
+    expected = np.array([trees[m].predict(x[i:i + 1])[0] for i, m in enumerate(members)])
+    # Expect: row i routed through tree members[i] exactly as that tree alone decides
+    assert np.array_equal(Forest(trees).decide(x, members), expected)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10**6), st.integers(2, 10), st.integers(0, 10**6))
+def test_nested_round_trip_and_mutations_keep_the_limit(tree_seed, leaves, mutation_seed):
+    task = ibt.get_task("CartPole-v1")
+    tree = _tree(tree_seed, leaves, n_features=4, n_actions=2)
+    x = np.random.default_rng(0).normal(size=(300, 4)).astype(np.float32)
+    assert np.array_equal(arrays(nested(tree), 4, 2).predict(x), tree.predict(x))
+    mutator = _Mutator(task, EvolveConfig(max_leaves=leaves, use_expert=False),
+                       np.random.default_rng(mutation_seed), None)
+    mutator.refresh(x)
+    root = nested(tree)
+    for _ in range(20):
+        root = nested(arrays(mutator.mutate(root), 4, 2))
+        assert arrays(root, 4, 2).n_leaves <= leaves  # the search never outgrows its limit
+
+
+def test_a_small_search_is_deterministic_and_within_its_limit():
+    task = ibt.get_task("CartPole-v1")
+    source = _tree(0, 6, n_features=4, n_actions=2)
+    config = EvolveConfig(max_leaves=3, episodes=120, mu=2, lam=4, generation_episodes=4,
+                          pool_episodes=2, selection_episodes=4, finalists=3, n_envs=8,
+                          use_expert=False)
+    first = evolve([source], task, config, seed=3, progress=False)
+    second = evolve([source], task, config, seed=3, progress=False)
+    assert first.best.n_leaves <= 3 and first.episodes <= 120
+    assert first.selection_means == second.selection_means
+    assert np.array_equal(first.best.threshold, second.best.threshold)
+    assert first.random_steps_per_second > 0 and first.steps > 0
