@@ -43,7 +43,7 @@ def test_merge_thresholds_keeps_the_tightest_bounds():
 
 
 def test_espresso_uses_dont_cares():
-    # ON a & ~b, DC a & b  ->  a   (the example of shared/NOTES.md)
+    # ON a & ~b, DC a & b  ->  a   (Espresso with a don't-care cube)
     assert espresso_cubes(2, [(2, 1)], [(2, 2)]) == [(2, 3)]
     assert espresso_cubes(2, [(2, 1)], []) == [(2, 1)]
 

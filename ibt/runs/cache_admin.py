@@ -317,6 +317,15 @@ def migrate(cache_dir: str | Path, *, dry_run: bool = False) -> Migration:
                 and manifest["code_version"] == CODE_VERSIONS.get(entry.kind) \
                 and manifest.get("key_packages") == now:
             target = entry.path.parent / cache_key(entry.kind, manifest["params"])
+        elif entry.status == "stale" and manifest and "params" in manifest \
+                and manifest.get("code_version") == CODE_VERSIONS.get(entry.kind) \
+                and {p: manifest.get("versions", {}).get(p) for p in KEY_PACKAGES} == now:
+            # written by today's code under the installed versions of today's key packages,
+            # keyed before the key packages grew (numpy and torch joined them): re-key it
+            manifest.update(key_packages=now, rekeyed_from=entry.key)
+            target = entry.path.parent / cache_key(entry.kind, manifest["params"])
+            if not dry_run:
+                atomic_write_text(entry.path / "manifest.json", manifest_text(manifest))
         elif entry.status == "legacy":
             assert manifest is not None  # a legacy entry's status was read off its manifest
             recorded = {p: manifest.get("versions", {}).get(p) for p in KEY_PACKAGES}

@@ -76,7 +76,8 @@ ANCHORS = (
     Anchor("MENS-DT-RL", "MountainCar-v0", nodes=7, leaves=4, mean_return=-103.3,
            std_return=None, max_bt_nodes=7),
     # Kohler et al.'s interpretable-rl-zoo: CART trees distilled by DAgger from the SB3-zoo
-    # PPO expert, run here on LunarLander-v3 (shared/NOTES.md); a CART of L leaves has 2L-1
+    # PPO expert (KohlerHECTOR/interpretable-rl-zoo), its trees run here on LunarLander-v3 on
+    # 50 episodes each; a CART of L leaves has 2L-1
     # nodes
     Anchor("interpretable-rl-zoo CART", "LunarLander-v3", nodes=15, leaves=8, mean_return=17.2,
            std_return=None),

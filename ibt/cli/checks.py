@@ -1,0 +1,260 @@
+"""The command line's input checks: numeric flags with bounds, input and output paths, tree
+and BT files read safely; bad input is a :class:`UsageError` (exit 2, one line)."""
+
+
+from __future__ import annotations
+
+import argparse
+import glob
+import math
+import os
+import shlex
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
+    from ibt.tasks.task import Task
+
+
+
+EXPORT_FORMATS = ("json", "dot", "svg", "png", "btcpp-xml")
+EXPORT_SUFFIXES = {"json": (".json",), "dot": (".dot", ".gv"), "svg": (".svg",),
+                   "png": (".png",), "btcpp-xml": (".xml",)}
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+MAX_BT_BYTES = 64 << 20  # a BT or XML file larger than this is refused (not read)
+STALE_TEMP_SECONDS = 30  # hidden temp files older than this, beside an output, are swept
+
+
+class UsageError(Exception):
+    """Bad input found by the command line: exit code 2 and this one-line message."""
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised where the process is, so that it unwinds like Ctrl-C (exit 143)."""
+
+
+# ------------------------------------------------------------------------- input checks
+def _int_at_least(minimum: int, what: str, maximum: int = 10**6) -> Callable[[str], int]:
+    """An argparse type: an integer in ``[minimum, maximum]``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text) if len(text) <= 30 else None
+        except ValueError:
+            value = None
+        if value is None:
+            raise argparse.ArgumentTypeError(f"expected an integer ({what}), got {text!r:.40}")
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum} ({what}), got {value}")
+        if value > maximum:
+            raise argparse.ArgumentTypeError(f"must be at most {maximum:,} ({what}), got "
+                                             f"{text:.40}")
+        return value
+
+    return parse
+
+
+def _seconds(text: str) -> float:
+    """An argparse type: a finite number of seconds, 0 or more."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not math.isfinite(value) or not 0 <= value <= 60:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds from 0 to 60, got "
+                                         f"{text:.40}")
+    return value
+
+
+POSITIVE = _int_at_least(1, "a count")
+EPISODES = _int_at_least(1, "episodes", 1_000_000)
+SEED = _int_at_least(0, "a seed: 0 to 2**32 - 1", 2**32 - 1)
+LEAVES = _int_at_least(2, "leaves of a tree", 100_000)
+LABELS = _int_at_least(1, "expert labels", 10_000_000)
+ITERATIONS = _int_at_least(1, "iterations", 10_000)
+TIMESTEPS = _int_at_least(1, "timesteps", 10**10)
+REFINE_EPISODES = _int_at_least(1, "refinement episodes", 10_000_000)
+PORT = _int_at_least(1, "a TCP port", 65_535)
+
+
+def _writable_folder(folder: Path, what: str) -> None:
+    """Fail unless ``folder`` is, or can be made inside, a folder we can write in (probed)."""
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise UsageError(f"{what}: {existing} is a file, not a folder; choose another path")
+    try:
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=".ibt-probe-")
+    except OSError as err:
+        raise UsageError(f"{what}: cannot write in {existing} ({err.strerror}); choose another "
+                         "path") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def check_output(path: str | Path, suffixes: Sequence[str], option: str = "-o") -> Path:
+    """``path`` if a file of one of ``suffixes`` can be written there; checked before any work
+    (a missing parent folder is fine: it is created when the file is written)."""
+    path = Path(path)
+    what = f"{option} {path}"
+    if path.is_dir():
+        raise UsageError(f"{what} is a folder; name a file in it, e.g. "
+                         f"{option} {path / ('out' + suffixes[0])}")
+    if path.suffix not in suffixes:
+        raise UsageError(f"{what}: expected a {' or '.join(suffixes)} file, e.g. "
+                         f"{option} {path.with_suffix(suffixes[0])}")
+    _writable_folder(path.parent, what)
+    if path.exists() and not os.access(path, os.W_OK):
+        raise UsageError(f"{what} is read-only; choose another path")
+    sweep_temp_files(path)
+    return path
+
+
+def sweep_temp_files(path: Path, age: float = STALE_TEMP_SECONDS) -> list[Path]:
+    """Remove the hidden temporary files a killed run left beside ``path`` (those of
+    :func:`ibt.files.atomic_target`, ``.<name>.XXXXXXXX<suffix>``, and write probes) that were
+    last written more than ``age`` seconds ago; returns them."""
+    import time
+
+    removed: list[Path] = []
+    try:
+        candidates = [*path.parent.glob(f".{glob_escape(path.name)}.*"),
+                      *path.parent.glob(".ibt-probe-*")]
+    except OSError:
+        return removed
+    for temp in candidates:
+        try:
+            if temp.is_file() and not temp.is_symlink() \
+                    and time.time() - temp.stat().st_mtime > age:
+                temp.unlink()
+                removed.append(temp)
+        except OSError:
+            continue
+    return removed
+
+
+def glob_escape(name: str) -> str:
+    """``name`` with glob's special characters taken literally."""
+    return glob.escape(name)
+
+
+def check_output_folder(path: str | Path, option: str) -> Path:
+    """``path`` if it is, or can become, a folder we can write in."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"{option} {path} is a file, not a folder; choose another path")
+    _writable_folder(path, f"{option} {path}")
+    return path
+
+
+def check_input(path: str | Path, what: str, hint: str) -> Path:
+    """``path`` if it is an existing regular file, else a ``UsageError`` ending with ``hint``
+    (a device or a named pipe is refused: reading it would not end)."""
+    path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"{path} is a folder; pass the {what} itself")
+    if not path.exists():
+        raise UsageError(f"no {what} at {path}; {hint}")
+    if not path.is_file():
+        raise UsageError(f"{path} is not a regular file (a device, pipe or socket); pass the "
+                         f"{what} itself")
+    return path
+
+
+def read_input(path: str | Path, what: str, hint: str, limit: int = MAX_BT_BYTES) -> bytes:
+    """The bytes of an input file, checked by :func:`check_input` and at most ``limit``."""
+    from ibt.distill.tree_file import read_regular_file
+
+    path = check_input(path, what, hint)
+    try:
+        return read_regular_file(path, limit, what)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+
+
+def _again(args: argparse.Namespace, *extra: str) -> str:
+    """The user's own command with ``extra`` arguments added (a hint that works)."""
+    return "python -m ibt " + shlex.join([*args.argv, *extra])
+
+
+# ------------------------------------------------------------------------ tree files
+def load_tree_file(path: str | Path, args: argparse.Namespace | None = None) -> dict[str, Any]:
+    """A tree file of :mod:`ibt.distill.tree_file`, checked; a pickle only with --trust-pickle."""
+    from ibt.distill.tree_file import TREE_SUFFIX
+    from ibt.distill.tree_file import load_tree_file as load
+
+    hint = (f"make one with `python -m ibt distill CartPole-v1 ppo -o "
+            f"{shlex.quote(str(Path(path).with_suffix(TREE_SUFFIX)))}`")
+    path = check_input(path, "decision-tree file", hint)
+    return load(path, trust_pickle=bool(getattr(args, "trust_pickle", False)))
+
+
+def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) -> Task:
+    """The task a tree file was distilled on, with the names it was fitted on.
+
+    A name of the form ``MODULE:EnvId`` in the file imports nothing: only ``--env-module`` on
+    the command line imports (a file must not choose the code that runs)."""
+    from ibt.tasks.catalogue import resolve_task
+
+    name = doc["task"]
+    module, colon, bare = name.rpartition(":")
+    if colon and module not in args.env_module:
+        retry = _again(args, "--env-module", module)
+        raise UsageError(f"{path} was distilled on {bare}, which the module {module} registers; "
+                         f"a tree file imports nothing: if you trust that module, run "
+                         f"`{retry}`")
+    try:
+        task = resolve_task(bare)
+    except LookupError:
+        modules = [m for m in doc.get("env_modules", []) if m not in args.env_module]
+        if modules:
+            retry = _again(args, "--env-module", modules[0])
+            raise UsageError(f"{path} was distilled on {name}, an environment that "
+                             f"{modules[0]} registers; run `{retry}`") from None
+        raise
+    if (task.feature_names, task.action_names) != (tuple(doc["feature_names"]),
+                                                   tuple(doc["action_names"])):
+        raise UsageError(f"{path} was fitted on {name} with features "
+                         f"{', '.join(doc['feature_names'])} and actions "
+                         f"{', '.join(doc['action_names'])}, but {name} now names "
+                         f"{', '.join(task.feature_names)} and {', '.join(task.action_names)}; "
+                         "distil it again")
+    return task
+
+
+def _bt_hint(path: str | Path) -> str:
+    bt_file = shlex.quote(str(Path(path).with_suffix(".json")))
+    return ("make one with `python -m ibt distill CartPole-v1 ppo -o tree.json` and "
+            f"`python -m ibt synthesize tree.json -o {bt_file}`")
+
+
+def _read_json(path: str | Path, what: str, hint: str) -> Any:
+    """A JSON input file: regular, bounded, strict (no duplicate keys)."""
+    from ibt.distill.tree_file import parse_json
+
+    data = read_input(path, what, hint)
+    try:
+        return parse_json(data, path, what)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+
+
+def _load_bt(path: str | Path, doc: Any = None):
+    from ibt.bt.model import BehaviorTree
+
+    if doc is None:
+        doc = _read_json(path, "behavior tree", _bt_hint(path))
+    try:
+        return BehaviorTree.from_dict(doc)
+    except RecursionError:
+        raise UsageError(f"{path} is nested too deeply to be a behavior tree") from None
+    except ValueError as err:
+        raise UsageError(f"{path} is not a valid behavior tree: {err}") from None
+
+
+# --------------------------------------------------------------------------- commands

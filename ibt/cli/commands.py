@@ -1,0 +1,359 @@
+"""The command line's subcommands: each takes the parsed arguments and returns an exit code;
+the compute stack is imported inside each, when it runs."""
+
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ibt.synth.registry import get_synthesiser
+from ibt.tasks.settings import ALGOS
+
+if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
+    from ibt.tasks.task import Task
+
+from ibt.cli.checks import (
+    EXPORT_SUFFIXES,
+    UsageError,
+    _again,
+    _bt_hint,
+    _load_bt,
+    _read_json,
+    _tree_task,
+    check_input,
+    check_output,
+    check_output_folder,
+    load_tree_file,
+    read_input,
+)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from ibt.experts.expert import hyperparams
+    from ibt.experts.training import train_missing
+    from ibt.paths import DATA_DIR
+    from ibt.tasks.catalogue import resolve_task
+
+    # `train CartPole-v1 ppo` reads as `train CartPole-v1 --algo ppo`
+    named_algos = [t.lower() for t in args.tasks if t.lower() in ALGOS]
+    # none named: each task's own catalogue algorithms
+    algos = list(dict.fromkeys([*(args.algo or []), *named_algos])) or None
+    tasks = [resolve_task(t) for t in args.tasks if t.lower() not in ALGOS]
+    for task in tasks:
+        for algo in algos or ():
+            hyperparams(task, algo)  # before any training: every pair has its settings
+    root = check_output_folder(args.experts_dir or DATA_DIR / "experts", "--experts-dir")
+    since = None
+    if args.refresh_before:
+        stamp = Path(args.refresh_before)
+        if not stamp.is_file():
+            raise UsageError(f"--refresh-before {stamp}: no such file; create it when a "
+                             f"from-scratch run starts with `touch {shlex.quote(str(stamp))}`")
+        since = stamp.stat().st_mtime
+    from ibt.experts.expert import expert_path
+    from ibt.experts.training import catalogue_pairs
+
+    asked = catalogue_pairs(tasks, algos)
+
+    def mtime(t: Task, a: str) -> int | None:
+        path = expert_path(t, a, root)
+        return path.stat().st_mtime_ns if path.exists() else None
+
+    before = {(t.name, a): mtime(t, a) for t, a in asked}
+    manifest = train_missing(tasks or None, algos, refresh=args.refresh, seed=args.seed,
+                             timesteps=args.timesteps, refresh_before=since, root=root)
+    skipped = [f"{t.name}/{a}" for t, a in asked
+               if before[(t.name, a)] is not None and before[(t.name, a)] == mtime(t, a)]
+    if skipped:
+        print(f"skipped {len(skipped)} expert(s) already recorded in {root} (--refresh "
+              f"retrains them): {', '.join(skipped)}")
+    names = {t.name for t, _ in asked}
+    rows = manifest[manifest["task"].isin(names) & manifest["algo"].isin({a for _, a in asked})]
+    columns = [c for c in ("task", "algo", "timesteps", "mean_return", "meets_bar", "status")
+               if c in rows]  # the full manifest is in manifest.csv; this fits a terminal
+    print(rows[columns].to_string(index=False))
+    return 0
+
+
+def _random(args: argparse.Namespace) -> int:
+    from ibt.experts.training import random_baselines
+    from ibt.paths import DATA_DIR
+    from ibt.tasks.catalogue import resolve_task
+
+    tasks = [resolve_task(t) for t in args.tasks]
+    path = check_output(args.output or DATA_DIR / "experts" / "random.csv", (".csv",))
+    print(random_baselines(tasks or None, n_episodes=args.episodes, path=path)
+          .to_string(index=False))
+    return 0
+
+
+def _distill(args: argparse.Namespace) -> int:
+    from ibt.distill.loop import DistillConfig, distill
+    from ibt.distill.tree_file import save_tree_file
+    from ibt.experts.expert import load_expert
+    from ibt.tasks.catalogue import resolve_task
+
+    task = resolve_task(args.task)
+    out = check_output(args.output, (".json",))
+    expert = load_expert(task, args.algo, args.checkpoint)
+    overrides = {"n_iterations": args.iterations, "selection_episodes": args.selection_episodes}
+    if args.labels is not None:
+        overrides["labels_per_iteration"] = args.labels
+    if args.max_leaf_nodes is not None:
+        overrides["max_leaf_nodes"] = args.max_leaf_nodes
+    config = DistillConfig.for_task(task, method=args.method, **overrides)
+    run = distill(task, expert, config, seed=args.seed, progress=not args.quiet)
+    best = run.iterations[run.best_index]
+    save_tree_file(out, run.best_tree, task,
+                   {"algo": args.algo, "method": args.method, "seed": args.seed,
+                    "iterations": run.iterations, "best_index": run.best_index,
+                    "env_modules": args.env_module})
+    print(f"{task.name}/{args.algo}/{args.method}: best tree at iteration {run.best_index} "
+          f"({best['leaves']} leaves of at most {config.max_leaf_nodes}, {best['nodes']} nodes, "
+          f"held-out return {best['selection_mean']:.2f}); {run.expert_labels} expert labels; "
+          f"written to {out}")
+    return 0
+
+
+def _refine(args: argparse.Namespace) -> int:
+    from ibt.distill.tree_file import save_tree_file
+    from ibt.refine.by_return import refine, task_config
+
+    out = check_output(args.output, (".json",))
+    doc = load_tree_file(args.tree, args)
+    task = _tree_task(doc, args.tree, args)
+    overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
+    if args.episodes is not None:
+        overrides["episodes"] = args.episodes
+    config = task_config(task, **overrides)
+    record = refine(doc["tree"], task, config, seed=args.seed, progress=not args.quiet)
+    tree = record.best_tree
+    info = {k: v for k, v in doc.items() if k in ("algo", "method", "seed")}
+    save_tree_file(out, tree, task, {**info, "refined_from": str(args.tree),
+                                     "refinement": {"stages": record.stages,
+                                                    "selection_means": record.selection_means,
+                                                    "best_index": record.best_index,
+                                                    "config": record.config},
+                                     "env_modules": args.env_module})
+    before, after = record.selection_means[0], record.selection_means[record.best_index]
+    # refinement starts from the tree with same-action sibling leaves merged (it decides alike)
+    given, merged = int(doc["tree"].get_n_leaves()), record.candidates[0].n_leaves
+    start = (f"{given}" if given == merged
+             else f"{given} ({merged} once leaves that always decide alike are merged)")
+    print(f"{task.name}: {start} -> {record.best.n_leaves} leaves, "
+          f"held-out return {before:.2f} -> {after:.2f} ({record.episodes} refinement "
+          f"episodes, {record.cpu_seconds:.0f} s CPU); written to {out}")
+    return 0
+
+
+def _synthesize(args: argparse.Namespace) -> int:
+    from ibt.bt.json_io import save_json
+    from ibt.synth.imitation import NotEquivalentError, imitation_bt
+
+    out = check_output(args.output, (".json",))
+    doc = load_tree_file(args.tree, args)
+    task = _tree_task(doc, args.tree, args)
+    try:
+        if args.method == "imitation-bt":  # the paper's construction takes its options
+            result = imitation_bt(doc["tree"], task, default_strategy=args.default_strategy,
+                                  dont_cares=args.dont_cares)
+        else:
+            result = get_synthesiser(args.method)(doc["tree"], task)
+    except NotEquivalentError as err:  # a bug of ours, not bad input: nothing is written
+        raise RuntimeError(f"the synthesised BT failed its verification ({err}); please "
+                           "report it with the tree file") from None
+    result.bt.validate()  # every state reaches an action, so the file will load again
+    save_json(result.bt, out)
+    print(f"{args.method}: {result.bt.node_count} nodes, verified equivalent to the tree; "
+          f"written to {out}")
+    return 0
+
+
+def _convert_tree(args: argparse.Namespace) -> int:
+    from ibt.distill.tree_file import PICKLE_SUFFIXES, convert_tree_file
+
+    out = check_output(args.output, (".json",))
+    source = check_input(args.tree, "pickled decision-tree file", "pass the .joblib file to "
+                         "convert")
+    if source.suffix.lower() not in PICKLE_SUFFIXES:
+        raise UsageError(f"{source} is not a pickled tree file ({', '.join(PICKLE_SUFFIXES)}); "
+                         "JSON tree files need no conversion")
+    if not args.trust_pickle:
+        raise UsageError(f"reading {source} runs the code a pickle holds; if it comes from a "
+                         f"trusted source, run `{_again(args, '--trust-pickle')}`")
+    doc = convert_tree_file(source, out)
+    print(f"{source} ({doc['task']}, {doc['tree'].get_n_leaves()} leaves) converted; written "
+          f"to {out}")
+    return 0
+
+
+def _matching_tasks(bt: Any) -> list[str]:
+    from ibt.tasks.catalogue import TASKS
+
+    return [t.name for t in TASKS.values()
+            if (t.feature_names, t.action_names) == (bt.feature_names, bt.action_names)]
+
+
+def _load_policy(path: Path, args: argparse.Namespace):
+    from ibt.distill.tree_file import PICKLE_SUFFIXES, TREE_FORMAT
+    from ibt.evaluate.policies import BTPolicy, TreePolicy
+    from ibt.tasks.catalogue import resolve_task
+
+    doc = None
+    if path.suffix.lower() not in PICKLE_SUFFIXES:
+        if path.suffix.lower() != ".json" and not path.exists():
+            raise UsageError(f"{path}: expected a BT (.json), a decision-tree file (.json) or "
+                             f"an expert ({', '.join(ALGOS)})")
+        doc = _read_json(path, "BT or decision-tree file", _bt_hint(path))
+    if doc is not None and not (isinstance(doc, dict) and doc.get("format") == TREE_FORMAT):
+        bt = _load_bt(path, doc)
+        if args.task is None:
+            known = _matching_tasks(bt)
+            if len(known) == 1:
+                raise UsageError(f"a BT file does not name its task; its names are "
+                                 f"{known[0]}'s: run `{_again(args, '--task', known[0])}`")
+            raise UsageError("a BT file does not name its task; pass --task with the "
+                             "environment it was made for")
+        task = resolve_task(args.task)
+        if (bt.feature_names, bt.action_names) != (task.feature_names, task.action_names):
+            known = _matching_tasks(bt)
+            fix = (f"run `{_again(args, '--task', known[0])}`" if len(known) == 1
+                   else "pass the task the BT was made for")
+            raise UsageError(f"{path} reads {', '.join(bt.feature_names)} and acts "
+                             f"{', '.join(bt.action_names)}, but {task.name} has "
+                             f"{', '.join(task.feature_names)} and "
+                             f"{', '.join(task.action_names)}; {fix}")
+        return task, BTPolicy(task, bt)
+    doc = load_tree_file(path, args)
+    task = _tree_task(doc, path, args)
+    if args.task is not None and resolve_task(args.task).name != task.name:
+        raise UsageError(f"{path} was distilled on {task.name}, not {args.task}; drop --task "
+                         f"or pass --task {task.name}")
+    return task, TreePolicy(task, doc["tree"])
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from ibt.evaluate.rollouts import episode_metrics, final_seeds, rollout
+    from ibt.experts.expert import load_expert
+    from ibt.tasks.catalogue import resolve_task
+
+    if args.policy in ALGOS:
+        if args.task is None:
+            raise UsageError(f"evaluating an expert needs --task, e.g. "
+                             f"`{_again(args, '--task', 'CartPole-v1')}`")
+        task = resolve_task(args.task)
+        policy: Any = load_expert(task, args.policy, args.checkpoint)
+    else:
+        if args.checkpoint is not None:
+            raise UsageError(f"--checkpoint is for experts ({', '.join(ALGOS)}), not for "
+                             f"{args.policy}; drop it")
+        task, policy = _load_policy(Path(args.policy), args)
+    result = rollout(task, policy.act, final_seeds(args.episodes))
+    extra = "".join(f", {k} {v:.3f}" for k, v in episode_metrics(task, result).items())
+    print(f"{task.name}: mean return {result.mean:.3f} +- {result.std:.3f} over "
+          f"{len(result.returns)} episodes{extra}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from ibt.bt.json_io import save_json
+    from ibt.export.drawing import require_dot, to_graphviz
+    from ibt.export.pictures import save_drawing
+    from ibt.files import atomic_write_text
+
+    out = check_output(args.output, EXPORT_SUFFIXES[args.format])
+    if args.format in ("svg", "png"):
+        require_dot()
+    bt = _load_bt(args.bt)
+    if args.format == "json":
+        save_json(bt, out)
+    elif args.format == "btcpp-xml":
+        from ibt.export.btcpp import to_btcpp_xml
+
+        atomic_write_text(out, to_btcpp_xml(bt, flavour=args.flavour))
+    elif args.format == "dot":
+        atomic_write_text(out, to_graphviz(bt).source)
+    else:
+        save_drawing(to_graphviz(bt), out.with_suffix(""), formats=(args.format,))
+    print(f"written {out}")
+    return 0
+
+
+def _run_btcpp(args: argparse.Namespace) -> int:
+    from ibt.export.engine import run_btcpp
+    from ibt.tasks.catalogue import resolve_task
+
+    hint = "write one with `python -m ibt export BT.json --format btcpp-xml -o BT.xml`"
+    xml = check_input(args.xml, "BehaviorTree.CPP XML", hint)
+    read_input(xml, "BehaviorTree.CPP XML", hint)  # a regular file of bounded size
+    run = run_btcpp(xml, resolve_task(args.task), args.episodes, args.groot_port,
+                    args.step_delay)
+    print(run.summary())
+    if not run.ok:
+        print("error: BehaviorTree.CPP and the Python BT disagree (a bug: please report it)",
+              file=sys.stderr)
+    return 0 if run.ok else 1
+
+
+def _pipeline(args: argparse.Namespace) -> int:
+    from ibt.runs.recommend import recommend
+    from ibt.runs.recommend_files import write_outputs
+    from ibt.tasks.catalogue import resolve_task
+
+    out = check_output_folder(args.output, "-o")
+    task = resolve_task(args.task)
+    checkpoint = args.checkpoint
+    if checkpoint is None:
+        from ibt.experts.expert import expert_path
+
+        checkpoint = expert_path(task, args.algo)
+    check_input(checkpoint, "SB3 checkpoint", "pass your agent's zip with --checkpoint")
+    rec = recommend(task, args.algo, checkpoint, keep=args.keep, budget=args.budget,
+                    leaf_limits=args.leaves, seed=args.seed, episodes=args.episodes,
+                    cache_dir=args.cache_dir or Path(args.output) / "cache",
+                    progress=not args.quiet, argv=args.argv, env_modules=args.env_module)
+    write_outputs(rec, out)
+    verdict = "meets" if rec.met else "MISSES"
+    print(f"{task.name}/{args.algo}: recommended a {rec.chosen.bt_nodes}-node BT keeping "
+          f"{rec.retention:.1f} % of the agent (random-normalised, {rec.episodes} held-out "
+          f"episodes); {verdict} the {100 * args.keep:.0f} % target; see {out / 'report.md'}")
+    return 0
+
+
+def _keep(text: str) -> float:
+    """An argparse type: a share in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a share such as 0.95, got {text!r}") from None
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1] (a share of the agent), got {text}")
+    return value
+
+
+def _budget(text: str) -> Any:
+    from ibt.runs.recommend import parse_budget
+
+    try:
+        return parse_budget(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).split(": ", 1)[-1]) from None
+
+
+def _leaf_limits(text: str) -> tuple[int, ...]:
+    """An argparse type: comma-separated leaf limits, each at least 2."""
+    try:
+        values = tuple(sorted({int(v) for v in text.split(",") if v.strip()}))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected leaf limits such as 4,8,16,32, got "
+                                         f"{text!r}") from None
+    if not values or values[0] < 2:
+        raise argparse.ArgumentTypeError(f"leaf limits must be at least 2, got {text!r}")
+    return values
+
+
+# ----------------------------------------------------------------------------- parser

@@ -1,0 +1,110 @@
+"""A guard on the cache's code versions: a cached computation's source cannot change unseen.
+
+Every cache key carries its kind's code version (:data:`ibt.runs.cache.CODE_VERSIONS`), so a
+changed computation misses instead of returning a stale result, but only if a person remembers to
+bump the number. This module takes that memory off the person: :data:`KIND_SOURCES` names, per
+kind, the modules whose code decides its results; ``data/cache/code_hashes.json`` records, per
+kind, the code version and a SHA-256 of those modules' source at the time it was set; and
+``tests/test_code_guard.py`` fails unless the record is current: a kind whose source changed
+must have its version bumped or the change recorded, and either is then written down.
+
+When the test fails, decide: if the change can change a result, bump the kind's number in
+``CODE_VERSIONS`` (its entries then recompute); if it cannot (a docstring, a rename, a refactor
+that keeps every number), say so by rewriting the record::
+
+    python -m ibt.runs.code_guard --write
+
+Either way the decision is explicit and reviewed in the diff of ``code_hashes.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from ibt.files import atomic_write_text
+from ibt.paths import DATA_DIR
+from ibt.runs.cache import CODE_VERSIONS
+
+PACKAGE = Path(__file__).resolve().parent.parent
+RECORD = DATA_DIR / "cache" / "code_hashes.json"
+
+_ROLLOUT = ("evaluate/rollouts.py", "evaluate/policies.py", "tasks/task.py", "tasks/builtin.py",
+            "tasks/settings.py", "envs/package_delivery.py", "envs/__init__.py")
+_TREES = ("refine/tree_arrays.py", "distill/loop.py")
+_SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decision_list.py",
+          "synth/baselines.py", "synth/registry.py", "bt/model.py", "bt/executors.py",
+          "bt/coverage.py")
+
+#: The modules (relative to the package) whose code decides each cache kind's results.
+KIND_SOURCES: dict[str, tuple[str, ...]] = {
+    "distill": ("distill/loop.py", "distill/schedules.py", "experts/expert.py",
+                "runs/pipeline.py", *_ROLLOUT),
+    "expert-eval": ("experts/expert.py", "runs/grid.py", *_ROLLOUT),
+    "tree-eval": ("runs/grid.py", *_TREES, *_ROLLOUT),
+    "bt-eval": ("runs/grid.py", "bt/model.py", "bt/executors.py", *_ROLLOUT),
+    "synthesis": ("runs/grid.py", *_TREES, *_SYNTH),
+    "refine": ("refine/by_return.py", "runs/front.py", *_TREES, *_ROLLOUT),
+    "front-bt": ("runs/front.py", *_TREES, *_SYNTH),
+    "executors": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
+    "evolve": ("refine/structure.py", "runs/search.py", "experts/expert.py", *_TREES,
+               *_ROLLOUT),
+    "protocol": ("runs/search.py", "bt/model.py", "bt/executors.py", *_ROLLOUT),
+    "speed": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
+}
+
+
+def source_digest(kind: str) -> str:
+    """SHA-256 of the sources of a kind's modules (in their listed order, names included)."""
+    h = hashlib.sha256()
+    for name in KIND_SOURCES[kind]:
+        h.update(name.encode() + b"\0" + (PACKAGE / name).read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def current() -> dict[str, dict[str, object]]:
+    """Per kind: its code version now and the digest of its sources now."""
+    return {kind: {"version": CODE_VERSIONS[kind], "sources": source_digest(kind)}
+            for kind in sorted(CODE_VERSIONS)}
+
+
+def differences(record: dict[str, dict[str, object]]) -> list[str]:
+    """What differs between the record and the code now, one line per kind, each naming the
+    decision to take (empty: the record is current)."""
+    lines = []
+    for kind, facts in current().items():
+        old = record.get(kind)
+        if old is None:
+            lines.append(f"{kind}: not recorded; record it with --write")
+        elif facts["version"] != old["version"]:
+            lines.append(f"{kind}: version {old['version']} -> {facts['version']}; record the "
+                         "bump with --write")
+        elif facts["sources"] != old["sources"]:
+            lines.append(f"{kind}: its sources changed but CODE_VERSIONS[{kind!r}] did not; "
+                         "bump it if the change can change a result, else record it with "
+                         "--write")
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ibt.runs.code_guard",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--write", action="store_true",
+                        help=f"record the current versions and sources in {RECORD}")
+    args = parser.parse_args(argv)
+    if args.write:
+        atomic_write_text(RECORD, json.dumps(current(), indent=1, sort_keys=True) + "\n")
+        print(f"recorded {len(CODE_VERSIONS)} kinds in {RECORD}")
+        return 0
+    record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
+    lines = differences(record)
+    print("\n".join(lines) if lines else f"{RECORD.name} is current")
+    return 1 if lines else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
