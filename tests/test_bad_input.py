@@ -295,7 +295,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("module-colon-id-missing", ["distill", "no_such_package:Env-v0", "ppo", "-o",
                                  "{o}/t.json"], "no module named 'no_such_package'"),
     ("continuous-actions", ["distill", "Pendulum-v1", "ppo", "-o", "{o}/t.json",
-                            "--checkpoint", CARTPOLE_PPO], "needs a Discrete action space"),
+                            "--checkpoint", CARTPOLE_PPO], "acts in a Box of 1 dimension"),
     ("no-hyperparameters", ["train", "CartPole-v0", "--algo", "ppo", "--experts-dir",
                             "{o}/experts"], "no hyperparameters for (CartPole-v0, ppo)"),
     ("refresh-before-missing", ["train", "CartPole-v1", "--algo", "ppo", "--experts-dir",
@@ -333,7 +333,9 @@ CASES: list[tuple[str, list[str], str]] = [
                              "--checkpoint", CARTPOLE_PPO], "--checkpoint is for experts"),
     # --- the parser itself
     ("missing-output", ["synthesize", "{d}/tree.json"], "required: -o/--output"),
-    ("unknown-algorithm", ["train", "CartPole-v1", "--algo", "sac"], "invalid choice: 'sac'"),
+    ("unknown-algorithm", ["train", "CartPole-v1", "--algo", "ddpg"], "invalid choice: 'ddpg'"),
+    ("algorithm-not-in-catalogue", ["train", "CartPole-v1", "--algo", "sac"],
+     "no hyperparameters for (CartPole-v1, sac)"),
     ("no-command", [], "required: command"),
 ]
 

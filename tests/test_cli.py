@@ -83,7 +83,7 @@ def test_train_and_random_baselines_write_where_told(tmp_path, capsys):
     out = tmp_path / "random.csv"
     assert main(["random-baselines", "CartPole-v1", "--episodes", "5", "-o", str(out)]) == 0
     assert pd.read_csv(out).set_index("task").loc["CartPole-v1", "n_episodes"] == 5
-    assert main(["train", "CartPole-v1", "--algo", "sac"]) == 2
+    assert main(["train", "CartPole-v1", "--algo", "ddpg"]) == 2
     assert "invalid choice" in capsys.readouterr().err
 
 

@@ -28,8 +28,8 @@ def test_unknown_config_parameter_is_named():
 def test_unknown_method_and_algorithm():
     with pytest.raises(ValueError, match="unknown method 'gail'"):
         DistillConfig(method="gail")
-    with pytest.raises(ValueError, match="unknown algorithm 'sac'"):
-        load_expert(get_task("CartPole-v1"), "sac")
+    with pytest.raises(ValueError, match="unknown algorithm 'ddpg'"):
+        load_expert(get_task("CartPole-v1"), "ddpg")
 
 
 def test_missing_expert_says_how_to_train(tmp_path):

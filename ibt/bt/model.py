@@ -124,6 +124,60 @@ Node = Union[Selector, Fallback, Sequence, Inverter, Condition, Action]  # noqa:
 
 
 @dataclass(frozen=True)
+class Commands:
+    """What each action of a BT for continuous actions sends: action ``i`` is the command
+    ``values[i]``, one number per named dimension (``dimensions``, with ``units``; issue 25).
+
+    JSON (the ``commands`` key of a BT document)::
+
+        "commands": {"dimensions": ["main_engine", "side_engine"],
+                     "units": ["throttle", "throttle"],
+                     "values": [[0.8, -0.3], [-1.0, 0.0]]}
+
+    ``values`` has one row per entry of ``action_names`` (the command's name), each row one
+    finite number per dimension.
+    """
+
+    dimensions: tuple[str, ...]
+    units: tuple[str, ...]
+    values: tuple[tuple[float, ...], ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"dimensions": list(self.dimensions), "units": list(self.units),
+                "values": [list(v) for v in self.values]}
+
+    @classmethod
+    def from_dict(cls, doc: Any, n_actions: int) -> Commands:
+        """Read and check a ``commands`` document: ``ValueError`` names the first problem."""
+        if not isinstance(doc, dict) or set(doc) != {"dimensions", "units", "values"}:
+            raise ValueError("commands must be an object with exactly 'dimensions', 'units' "
+                             "and 'values'")
+        dims = _names(doc["dimensions"], "commands.dimensions")
+        units = doc["units"]
+        if not isinstance(units, list) or len(units) != len(dims) or not all(
+                isinstance(u, str) for u in units):
+            raise ValueError("commands.units must be a list of one string per dimension")
+        values = doc["values"]
+        if not isinstance(values, list) or len(values) != n_actions:
+            raise ValueError(f"commands.values must hold one command per action ({n_actions})")
+        rows = []
+        for i, row in enumerate(values):
+            if not isinstance(row, list) or len(row) != len(dims):
+                raise ValueError(f"command {i} must be a list of {len(dims)} numbers")
+            bad = [v for v in row if isinstance(v, bool) or not isinstance(v, int | float)
+                   or not math.isfinite(v)]
+            if bad:
+                raise ValueError(f"command {i} ({row}) holds {bad[0]!r}, not a finite number; "
+                                 "give every command finite values")
+            rows.append(tuple(float(v) for v in row))
+        return cls(dims, tuple(units), tuple(rows))
+
+    def array(self) -> np.ndarray:
+        """The commands as a float32 matrix ``(n_actions, dimensions)``."""
+        return np.asarray(self.values, dtype=np.float32).reshape(len(self.values), -1)
+
+
+@dataclass(frozen=True)
 class BehaviorTree:
     """A BT with the names that make it readable and runnable on its own."""
 
@@ -133,6 +187,8 @@ class BehaviorTree:
     # labels of categorical features' integer values 0..k-1 ({feature index: labels}); only
     # used to print conditions readably (``carrying == heavy``), never to decide
     value_labels: tuple[tuple[int, tuple[str, ...]], ...] = ()
+    # continuous actions: the command vector each action sends (None: discrete actions)
+    commands: Commands | None = None
 
     def nodes(self) -> Iterator[Node]:
         """All nodes, depth first, root included (the order of py_trees' ``iterate``)."""
@@ -190,6 +246,7 @@ class BehaviorTree:
                 "sequence fails at the first failure; inverter flips"
             ),
             **extra,
+            **({"commands": self.commands.to_dict()} if self.commands is not None else {}),
             "root": node_to_dict(self.root),
         }
 
@@ -225,9 +282,11 @@ class BehaviorTree:
                 raise ValueError(f"value_labels names the feature {feature!r}, which is not in "
                                  "feature_names")
             labels.append((names.index(feature), _names(values, f"value_labels[{feature!r}]")))
+        action_names = _names(doc["action_names"], "action_names")
+        commands = (Commands.from_dict(doc["commands"], len(action_names))
+                    if "commands" in doc else None)
         tree = cls(root=node_from_dict(doc["root"]), feature_names=names,
-                   action_names=_names(doc["action_names"], "action_names"),
-                   value_labels=tuple(labels))
+                   action_names=action_names, value_labels=tuple(labels), commands=commands)
         tree.validate()
         return tree
 
@@ -275,7 +334,7 @@ class BehaviorTree:
 
 FORMAT = "ibt-behavior-tree/1"
 DOCUMENT_KEYS = frozenset({"format", "feature_names", "action_names", "tick_rule",
-                           "value_labels", "root"})
+                           "value_labels", "commands", "root"})
 
 
 def _names(values: Any, what: str) -> tuple[str, ...]:

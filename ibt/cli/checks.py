@@ -217,6 +217,8 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
             raise UsageError(f"{path} was distilled on {name}, an environment that "
                              f"{modules[0]} registers; run `{retry}`") from None
         raise
+    if task.continuous:  # a command tree (issue 25): its actions are the file's commands
+        return _command_task(doc, path, task)
     if (task.feature_names, task.action_names) != (tuple(doc["feature_names"]),
                                                    tuple(doc["action_names"])):
         raise UsageError(f"{path} was fitted on {name} with features "
@@ -225,6 +227,27 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
                          f"{', '.join(task.feature_names)} and {', '.join(task.action_names)}; "
                          "distil it again")
     return task
+
+
+def _command_task(doc: dict[str, Any], path: str | Path, task: Task) -> Task:
+    """The discrete view (actions = the file's commands) of a Box task's command tree, checked:
+    the task's features and action dimensions, every command finite and inside the Box."""
+    from ibt.bt.model import Commands
+    from ibt.synth.commands import command_task
+
+    try:
+        commands = Commands.from_dict(doc.get("commands"), len(doc["action_names"]))
+        if (task.feature_names, task.action_names) != (tuple(doc["feature_names"]),
+                                                       commands.dimensions):
+            raise ValueError(f"it reads {', '.join(doc['feature_names'])} and commands "
+                             f"{', '.join(commands.dimensions)}, but {task.name} has "
+                             f"{', '.join(task.feature_names)} and "
+                             f"{', '.join(task.action_names)}")
+        task.check_action(commands.array())
+    except ValueError as err:
+        raise UsageError(f"{path} is not a command tree of {task.name}: {err}; distil it "
+                         "again") from None
+    return command_task(task, tuple(doc["action_names"]))
 
 
 def _bt_hint(path: str | Path) -> str:

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ibt.synth.registry import get_synthesiser
-from ibt.tasks.settings import ALGOS
+from ibt.tasks.settings import ALGOS, BOX_MAX_LEAF_NODES
 
 if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
     from ibt.tasks.task import Task
@@ -100,7 +100,10 @@ def _distill(args: argparse.Namespace) -> int:
     task = resolve_task(args.task)
     out = check_output(args.output, (".json",))
     expert = load_expert(task, args.algo, args.checkpoint)
-    overrides = {"n_iterations": args.iterations, "selection_episodes": args.selection_episodes}
+    if task.continuous:  # issue 25: a regression tree, merged into named commands
+        return _distill_box(task, expert, out, args)
+    overrides = {"n_iterations": args.iterations if args.iterations is not None else
+                 DISCRETE_ITERATIONS, "selection_episodes": args.selection_episodes}
     if args.labels is not None:
         overrides["labels_per_iteration"] = args.labels
     if args.max_leaf_nodes is not None:
@@ -119,6 +122,48 @@ def _distill(args: argparse.Namespace) -> int:
     return 0
 
 
+DISCRETE_ITERATIONS = 50  #: distill's --iterations on a discrete task (the paper's)
+
+
+def _distill_box(task: Any, expert: Any, out: Path, args: argparse.Namespace) -> int:
+    """``distill`` on a Box task: the loop with a regression tree, its leaves merged into the
+    fewest commands that keep its held-out return (within 1 % of expert minus random)."""
+    from ibt.distill.continuous import BoxDistillConfig, distill_box
+    from ibt.distill.tree_file import save_tree_file
+    from ibt.evaluate.rollouts import rollout, selection_seeds
+    from ibt.experts.training import BoxRandomPolicy
+    from ibt.synth.commands import choose_commands
+
+    overrides: dict[str, Any] = {"selection_episodes": args.selection_episodes,
+                                 "method": args.method}
+    if args.iterations is not None:
+        overrides["n_iterations"] = args.iterations
+    if args.labels is not None:
+        overrides["labels_per_iteration"] = args.labels
+    if args.max_leaf_nodes is not None:
+        overrides["max_leaf_nodes"] = args.max_leaf_nodes
+    if task.budget.max_leaf_nodes is None and args.max_leaf_nodes is None:
+        overrides["max_leaf_nodes"] = BOX_MAX_LEAF_NODES
+    config = BoxDistillConfig.for_task(task, **overrides)
+    run = distill_box(task, expert, config, seed=args.seed, progress=not args.quiet)
+    seeds = selection_seeds(args.selection_episodes, args.seed, offset=1)
+    scale = (rollout(task, expert.act, seeds).mean
+             - rollout(task, BoxRandomPolicy(task, args.seed).act, seeds).mean)
+    chosen, rows = choose_commands(run.best_tree, task, seeds, scale=scale, seed=args.seed)
+    best = run.iterations[run.best_index]
+    save_tree_file(out, chosen.tree, chosen.task,
+                   {"algo": args.algo, "method": args.method, "seed": args.seed,
+                    "iterations": run.iterations, "best_index": run.best_index,
+                    "commands": chosen.commands.to_dict(), "command_choice": rows,
+                    "env_modules": args.env_module})
+    print(f"{task.name}/{args.algo}/{args.method}: best regression tree at iteration "
+          f"{run.best_index} ({best['leaves']} leaves of at most {config.max_leaf_nodes}, "
+          f"held-out return {best['selection_mean']:.2f}); {chosen.n_commands} commands "
+          f"(held-out return {rows[-1]['mean_return']:.2f}): "
+          f"{'; '.join(chosen.task.action_names)}; written to {out}")
+    return 0
+
+
 def _refine(args: argparse.Namespace) -> int:
     from ibt.distill.tree_file import save_tree_file
     from ibt.refine.by_return import refine, task_config
@@ -129,6 +174,9 @@ def _refine(args: argparse.Namespace) -> int:
     overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
     if args.episodes is not None:
         overrides["episodes"] = args.episodes
+    if "commands" in doc:
+        raise UsageError(f"{args.tree} is a command tree (continuous actions): refinement by "
+                         "return does not take one yet; synthesise it as it is")
     config = task_config(task, **overrides)
     record = refine(doc["tree"], task, config, seed=args.seed, progress=not args.quiet)
     tree = record.best_tree
@@ -166,6 +214,13 @@ def _synthesize(args: argparse.Namespace) -> int:
     except NotEquivalentError as err:  # a bug of ours, not bad input: nothing is written
         raise RuntimeError(f"the synthesised BT failed its verification ({err}); please "
                            "report it with the tree file") from None
+    if "commands" in doc:  # a Box task's command tree: the BT carries the command table
+        from dataclasses import replace
+
+        from ibt.bt.model import Commands
+
+        result = replace(result, bt=replace(result.bt, commands=Commands.from_dict(
+            doc["commands"], len(doc["action_names"]))))
     result.bt.validate()  # every state reaches an action, so the file will load again
     save_json(result.bt, out)
     print(f"{args.method}: {result.bt.node_count} nodes, verified equivalent to the tree; "
@@ -219,6 +274,13 @@ def _load_policy(path: Path, args: argparse.Namespace):
             raise UsageError("a BT file does not name its task; pass --task with the "
                              "environment it was made for")
         task = resolve_task(args.task)
+        if bt.commands is not None or task.continuous:  # continuous actions (issue 25)
+            from ibt.synth.commands import CommandBTPolicy
+
+            try:
+                return task, CommandBTPolicy(task, bt)
+            except ValueError as err:
+                raise UsageError(f"{path}: {err}") from None
         if (bt.feature_names, bt.action_names) != (task.feature_names, task.action_names):
             known = _matching_tasks(bt)
             fix = (f"run `{_again(args, '--task', known[0])}`" if len(known) == 1
@@ -233,7 +295,22 @@ def _load_policy(path: Path, args: argparse.Namespace):
     if args.task is not None and resolve_task(args.task).name != task.name:
         raise UsageError(f"{path} was distilled on {task.name}, not {args.task}; drop --task "
                          f"or pass --task {task.name}")
+    if "commands" in doc:  # a command tree: acts on the Box task with its command vectors
+        from ibt.bt.model import Commands
+        from ibt.synth.commands import CommandTree
+
+        box = resolve_task(task.name)
+        tree = CommandTree(doc["tree"], Commands.from_dict(doc["commands"],
+                                                           len(doc["action_names"])), task)
+        return box, _Act(tree.policy(box))
     return task, TreePolicy(task, doc["tree"])
+
+
+class _Act:
+    """An ``act`` function as a policy object."""
+
+    def __init__(self, act: Any) -> None:
+        self.act = act
 
 
 def _evaluate(args: argparse.Namespace) -> int:

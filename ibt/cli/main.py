@@ -35,7 +35,7 @@ import sys
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from ibt.synth.registry import SYNTHESISERS
-from ibt.tasks.settings import ALGOS, DEFAULT_MAX_LEAF_NODES
+from ibt.tasks.settings import ALGOS, BOX_MAX_LEAF_NODES, DEFAULT_MAX_LEAF_NODES
 
 if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
     pass
@@ -125,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
     dist.add_argument("--method", default="imitation-bt",
                       choices=("bc", "dagger", "viper", "imitation-bt"))
     dist.add_argument("--seed", type=SEED, default=0)
-    dist.add_argument("--iterations", type=ITERATIONS, default=50)
+    dist.add_argument("--iterations", type=ITERATIONS, default=None,
+                      help="default 50; on a Box task (continuous actions) its budget's, or 20")
     dist.add_argument("--selection-episodes", type=EPISODES, default=20)
     dist.add_argument("--labels", type=LABELS, default=None,
                       help="at least this many new expert labels per iteration: whole episodes "
@@ -134,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     dist.add_argument("--max-leaf-nodes", type=LEAVES, default=None,
                       help="leaf limit of the tree (default: the task's budget in its "
                       f"catalogue entry, Task.budget; {DEFAULT_MAX_LEAF_NODES} for other "
-                      "tasks)")
+                      f"tasks, {BOX_MAX_LEAF_NODES} for other tasks with continuous actions, "
+                      "whose leaves are then merged into named commands)")
     dist.add_argument("--quiet", action="store_true", help="no progress bar")
     dist.set_defaults(func=_distill)
 

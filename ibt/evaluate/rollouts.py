@@ -73,6 +73,7 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
     ``ibt.refine.by_return``).
     """
     seeds = list(seeds)
+    box = task.continuous  # actions are vectors (rows of ``act``'s answer), not indices
     n_slots = max(1, min(n_envs, len(seeds)))
     envs = [task.make_env(**(env_kwargs or {})) for _ in range(n_slots)]
     returns = np.zeros(len(seeds))
@@ -114,7 +115,8 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
             steps += len(active)
             for s, action in zip(active, actions, strict=True):
                 ep = slot_episode[s]
-                slot_obs[s], reward, terminated, truncated, info = envs[s].step(int(action))
+                slot_obs[s], reward, terminated, truncated, info = envs[s].step(
+                    np.asarray(action, dtype=np.float32) if box else int(action))
                 returns[ep] += float(reward)
                 lengths[ep] += 1
                 if terminated or truncated:

@@ -74,9 +74,9 @@ def check_algo(algo: str) -> str:
 
 
 def _sb3_class(algo: str):
-    from stable_baselines3 import A2C, DQN, PPO
+    from stable_baselines3 import A2C, DQN, PPO, SAC, TD3
 
-    return {"dqn": DQN, "ppo": PPO, "a2c": A2C}[check_algo(algo)]
+    return {"dqn": DQN, "ppo": PPO, "a2c": A2C, "sac": SAC, "td3": TD3}[check_algo(algo)]
 
 
 def expert_path(task: Task, algo: str, root: Path | None = None) -> Path:
@@ -85,14 +85,23 @@ def expert_path(task: Task, algo: str, root: Path | None = None) -> Path:
 
 
 class Expert:
-    """A trained SB3 policy queried on raw observation batches."""
+    """A trained SB3 policy queried on raw observation batches.
+
+    On a task with discrete actions it acts by the argmax of its scores; on a Box task
+    (``task.continuous``) :meth:`act` returns action vectors ``(batch, dims)`` inside the Box,
+    and the weights of :meth:`label` come from :meth:`action_loss` (see there)."""
+
+    #: random actions whose mean loss is a state's weight on a Box task (fixed: deterministic)
+    SPREAD_ACTIONS = 16
 
     def __init__(self, task: Task, algo: str, model: Any, obs_norm: dict | None = None) -> None:
         self.task = task
         self.algo = check_algo(algo)
         self.model = model
         self.obs_norm = obs_norm
-        self.n_actions = int(model.action_space.n)
+        self.continuous = task.continuous
+        self.n_actions = (int(np.prod(model.action_space.shape)) if self.continuous
+                          else int(model.action_space.n))
 
     def _obs_tensor(self, obs: np.ndarray):
         obs = np.asarray(obs)
@@ -107,6 +116,10 @@ class Expert:
     def scores(self, obs: np.ndarray) -> np.ndarray:
         """``(batch, n_actions)``: Q-values (DQN) or log pi(a|s) (PPO, A2C)."""
         import torch
+
+        if self.continuous:
+            raise TypeError(f"{self.task.name} acts in a Box: an expert there has no per-action "
+                            "scores; use act, label or action_loss")
         from stable_baselines3.common.policies import BaseModel
 
         with torch.no_grad():
@@ -125,13 +138,74 @@ class Expert:
         return out.cpu().numpy().astype(np.float64).reshape(-1, self.n_actions)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Deterministic actions (argmax of the scores) for a batch."""
+        """Deterministic actions for a batch: argmax of the scores (discrete), or action
+        vectors ``(batch, dims)`` inside the Box (continuous)."""
+        if self.continuous:
+            return self._box_actions(obs)
         return np.argmax(self.scores(obs), axis=1)
 
     def label(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Actions and importance weights ``max_a score - min_a score`` in one forward pass."""
+        """Actions and importance weights: ``max_a score - min_a score`` (discrete, one forward
+        pass); on a Box task the mean :meth:`action_loss` of :attr:`SPREAD_ACTIONS` fixed
+        uniform random actions (the spread of the critic around the expert's action)."""
+        if self.continuous:
+            actions = self._box_actions(obs)
+            rng = np.random.default_rng(0)  # the same random actions on every call
+            low, high = np.asarray(self.task.action_low), np.asarray(self.task.action_high)
+            k, n = self.SPREAD_ACTIONS, len(actions)
+            tried = np.repeat(rng.uniform(low, high, size=(k, len(low))), n, axis=0)
+            losses = self.action_loss(np.concatenate([np.asarray(obs)] * k), tried)
+            return actions, losses.reshape(k, n).mean(axis=0)
         scores = self.scores(obs)
         return np.argmax(scores, axis=1), scores.max(axis=1) - scores.min(axis=1)
+
+    # --- Box tasks --------------------------------------------------------------------------
+
+    def _box_actions(self, obs: np.ndarray) -> np.ndarray:
+        """SB3's deterministic ``predict`` on a batch, as float32 ``(batch, dims)``: a squashed
+        actor's output (SAC, TD3) mapped onto the Box, a Gaussian's mean (PPO) clipped to it."""
+        import torch
+
+        with torch.no_grad():
+            tensor = self._obs_tensor(obs)
+            policy = self.model.policy
+            if self.algo in ("sac", "td3"):
+                scaled = policy.actor(tensor, deterministic=True).cpu().numpy()
+                actions = policy.unscale_action(scaled)
+            else:
+                dist = policy.get_distribution(tensor)
+                actions = dist.get_actions(deterministic=True).cpu().numpy()
+        low, high = np.asarray(self.task.action_low), np.asarray(self.task.action_high)
+        return np.clip(actions.reshape(len(actions), -1), low, high).astype(np.float32)
+
+    def action_loss(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """How much worse ``actions`` are than the expert's own, per state (>= 0).
+
+        SAC/TD3: ``Q(s, pi*(s)) - Q(s, a)`` under the expert's critic (the smaller of its twin
+        Q-networks, as in their targets); PPO/A2C: ``log pi(pi*(s)|s) - log pi(a|s)`` of its
+        Gaussian policy, ``pi*(s)`` its deterministic action (the mean clipped to the Box);
+        both clipped at 0."""
+        import torch
+
+        if not self.continuous:
+            raise TypeError("action_loss is for Box tasks; a discrete expert has scores")
+        a = np.array(actions, dtype=np.float32).reshape(len(obs), -1)  # a writable copy
+        with torch.no_grad():
+            tensor = self._obs_tensor(obs)
+            policy = self.model.policy
+            if self.algo in ("sac", "td3"):
+                own = torch.as_tensor(policy.scale_action(self._box_actions(obs)))
+                given = torch.as_tensor(policy.scale_action(a))
+
+                def q(act: Any) -> Any:
+                    return torch.min(torch.cat(policy.critic(tensor, act), dim=1), dim=1).values
+
+                loss = (q(own) - q(given)).cpu().numpy()
+            else:
+                own = torch.as_tensor(self._box_actions(obs))  # its mean, clipped to the Box
+                dist = policy.get_distribution(tensor)
+                loss = (dist.log_prob(own) - dist.log_prob(torch.as_tensor(a))).cpu().numpy()
+        return np.maximum(loss.astype(np.float64).reshape(-1), 0.0)
 
 
 def _norm_path(path: Path) -> Path:
@@ -271,6 +345,10 @@ def _checkpoint_algo(path: str | Path) -> str | None:
             data = json.loads(archive.read("data"))
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return None
+    if "target_entropy" in data:
+        return "sac"
+    if "target_policy_noise" in data:
+        return "td3"
     if "exploration_schedule" in data or "target_update_interval" in data:
         return "dqn"
     if "clip_range" in data:
@@ -304,11 +382,18 @@ def _load_cached(task: Task, algo: str, path: str, _mtime: int, _size: int) -> E
         raise ValueError(f"{path} is a corrupt or incompatible {algo.upper()} checkpoint "
                          f"({type(err).__name__}: {err}); replace it: "
                          f"{_train_hint(task, algo)}") from None
-    n = getattr(model.action_space, "n", None)
-    if n is None or int(n) != task.n_actions:
-        raise ValueError(f"{path} acts in {model.action_space}, but {task.name} has "
-                         f"{task.n_actions} discrete actions; is this the checkpoint of "
-                         "another task?")
+    if task.continuous:
+        shape = getattr(model.action_space, "shape", None)
+        if getattr(model.action_space, "n", None) is not None or shape != (task.n_actions,):
+            raise ValueError(f"{path} acts in {model.action_space}, but {task.name} acts in a "
+                             f"Box of {task.n_actions} dimension(s); is this the checkpoint of "
+                             "another task?")
+    else:
+        n = getattr(model.action_space, "n", None)
+        if n is None or int(n) != task.n_actions:
+            raise ValueError(f"{path} acts in {model.action_space}, but {task.name} has "
+                             f"{task.n_actions} discrete actions; is this the checkpoint of "
+                             "another task?")
     env = task.make_env()
     env_obs, env_act = env.observation_space, env.action_space
     env.close()
@@ -379,7 +464,7 @@ def train_expert(task: Task, algo: str, path: str | Path | None = None, *,
     elif hp.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=True)
     kwargs = algo_kwargs(hp)
-    policy_kwargs = {"net_arch": list(hp.net_arch)}
+    policy_kwargs = {"net_arch": list(hp.net_arch), **dict(hp.policy_kwargs)}
     model = _sb3_class(algo)("MlpPolicy", venv, seed=seed, device="cpu", verbose=0,
                              policy_kwargs=policy_kwargs, **kwargs)
     # SB3's default logger creates an empty /tmp/SB3-<date> folder on every learn(): log nowhere

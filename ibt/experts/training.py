@@ -89,7 +89,17 @@ def _record_locked(row: dict[str, Any], manifest: Path) -> None:
     atomic_write_csv(manifest, frame.reindex(columns=MANIFEST_COLUMNS))
 
 
-def train_missing(tasks: Iterable[Task] | None = None, algos: Iterable[str] = ALGOS, *,
+def catalogue_pairs(tasks: Iterable[Task] | None, algos: Iterable[str] | None
+                    ) -> list[tuple[Task, str]]:
+    """The (task, algo) experts asked for: every algorithm given, or (``algos`` None) each
+    task's own catalogue algorithms (discrete tasks: DQN, PPO, A2C; Box tasks: theirs)."""
+    chosen = list(tasks) if tasks else list(TASKS.values())
+    if algos is not None:
+        return [(t, a) for t in chosen for a in algos]
+    return [(t, a) for t in chosen for a in ALGOS if a in dict(t.experts)]
+
+
+def train_missing(tasks: Iterable[Task] | None = None, algos: Iterable[str] | None = None, *,
                   refresh: bool = False, root: Path | None = None, seed: int = 0,
                   timesteps: int | None = None, progress: bool = True,
                   refresh_before: float | None = None) -> pd.DataFrame:
@@ -100,7 +110,7 @@ def train_missing(tasks: Iterable[Task] | None = None, algos: Iterable[str] = AL
     """
     root = root or DATA_DIR / "experts"
     manifest = root / "manifest.csv"
-    pairs = [(t, a) for t in (tasks or list(TASKS.values())) for a in algos]
+    pairs = catalogue_pairs(tasks, algos)
     scripted: dict[str, float] = {}
     for task, algo in tqdm(pairs, desc="experts", disable=not progress):
         path = expert_path(task, algo, root)
@@ -126,10 +136,23 @@ def train_missing(tasks: Iterable[Task] | None = None, algos: Iterable[str] = AL
 
 def action_counts(task: Task, algo: str, path: Path | None = None, n_episodes: int = 100
                   ) -> tuple[dict[int, int], int]:
-    """How often the expert takes each action over the final episodes, and the step count."""
+    """How often the expert takes each action over the final episodes, and the step count
+    (on a Box task: each distinct action vector, numbered in order of first use)."""
     import numpy as np
 
     expert = load_expert(task, algo, path)
+    if task.continuous:
+        seen: dict[bytes, int] = {}
+        uses: list[int] = []
+
+        def count_vectors(_obs: Any, actions: Any) -> None:
+            for row in np.asarray(actions, dtype=np.float32):
+                k = seen.setdefault(row.tobytes(), len(seen))
+                uses.extend([0] * (k + 1 - len(uses)))
+                uses[k] += 1
+
+        rollout(task, expert.act, final_seeds(n_episodes), on_step=count_vectors)
+        return dict(enumerate(uses)), int(sum(uses))
     counts = np.zeros(expert.n_actions, dtype=np.int64)
 
     def count(_obs: Any, actions: Any) -> None:
@@ -149,6 +172,16 @@ def expert_status(task: Task, algo: str, bar_met: bool, path: Path | None = None
     """
     spec = task
     counts, steps = action_counts(task, algo, path, n_episodes)
+    if task.continuous:  # action vectors: how many distinct ones, not each one's count
+        measured = (f"{len(counts)} distinct action vectors over the {n_episodes} final "
+                    f"episodes ({steps} steps)")
+        if not bar_met:
+            return {"status": "excluded", "status_evidence": f"below its bar; {measured}"}
+        if len(counts) == 1:
+            return {"status": "constant-action",
+                    "status_evidence": f"one action vector on all {steps} steps of the "
+                                       f"{n_episodes} final episodes"}
+        return {"status": "ok", "status_evidence": measured}
     shares = ", ".join(f"{spec.action_names[a]} {n}" for a, n in
                        sorted(counts.items(), key=lambda kv: -kv[1]))
     measured = f"actions over the {n_episodes} final episodes ({steps} steps): {shares}"
@@ -195,7 +228,9 @@ def random_baselines(tasks: Iterable[Task] | None = None, n_episodes: int = 100,
     """Mean return of the uniform random policy per task (normalises retention)."""
     rows = []
     for task in tasks or list(TASKS.values()):
-        result = rollout(task, RandomPolicy(task.n_actions, seed=0).act, final_seeds(n_episodes))
+        act = (BoxRandomPolicy(task, seed=0).act if task.continuous
+               else RandomPolicy(task.n_actions, seed=0).act)
+        result = rollout(task, act, final_seeds(n_episodes))
         rows.append({"task": task.name, "mean_return": round(result.mean, 3),
                      "std_return": round(result.std, 3), "n_episodes": n_episodes})
     frame = pd.DataFrame(rows)
@@ -205,6 +240,22 @@ def random_baselines(tasks: Iterable[Task] | None = None, n_episodes: int = 100,
         frame = pd.concat([old[~old["task"].isin(frame["task"])], frame], ignore_index=True)
     atomic_write_csv(target, frame)
     return frame
+
+
+class BoxRandomPolicy:
+    """Uniformly random action vectors inside a Box task's bounds, from a seeded generator."""
+
+    def __init__(self, task: Task, seed: int = 0) -> None:
+        import numpy as np
+
+        self.low, self.high = np.asarray(task.action_low), np.asarray(task.action_high)
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, obs: Any) -> Any:
+        import numpy as np
+
+        return self.rng.uniform(self.low, self.high, size=(len(obs), len(self.low))
+                                ).astype(np.float32)
 
 
 def expert_manifest(task: str | None = None, algo: str | None = None,

@@ -47,6 +47,7 @@ import numpy as np
 from ibt.bt.model import (
     Action,
     BehaviorTree,
+    Commands,
     Condition,
     Fallback,
     Inverter,
@@ -151,6 +152,33 @@ def threshold_text(threshold: float) -> str:
     return repr(t)
 
 
+COMMAND_KEY = "command"  #: the blackboard key a command's Script writes its id to
+
+
+def command_keys(bt: BehaviorTree) -> list[str]:
+    """The output keys of a BT with commands: the command id's key, then one per dimension
+    (identifiers, unique, none a feature's key)."""
+    assert bt.commands is not None
+    taken = blackboard_keys(bt.feature_names)
+    keys: list[str] = []
+    for index, name in enumerate((COMMAND_KEY, *bt.commands.dimensions)):
+        key = _identifier(name)
+        if not key[:1].isalpha() or key.startswith(("true", "false")):
+            key = "c_" + key
+        key = _unique(key, index, taken + keys)
+        keys.append(key)
+    return keys
+
+
+def command_code(bt: BehaviorTree, action: int, keys: Seq[str]) -> str:
+    """The ``Script`` code of a command: ``command := 2; main_engine := 0.8; ...``."""
+    assert bt.commands is not None
+    values = bt.commands.values[action]
+    return "; ".join([f"{keys[0]} := {action}",
+                      *(f"{key} := {threshold_text(v)}" for key, v in
+                        zip(keys[1:], values, strict=True))])
+
+
 def condition_code(node: Condition, keys: Seq[str]) -> str:
     """The ``ScriptCondition`` code of a condition: ``velocity > 0.0023324477951973677``."""
     return f"{keys[node.feature]} {node.op} {threshold_text(node.threshold)}"
@@ -166,6 +194,9 @@ def _element(node: Node, bt: BehaviorTree, ids: list[str], keys: list[str],
             "ID": CONDITION_ID, "name": xml_safe(bt.label(node)), "feature": str(node.feature),
             "op": node.op, "threshold": threshold_text(node.threshold)})
     if isinstance(node, Action):
+        if bt.commands is not None:  # the engine's own Script node writes the command
+            return ET.Element("Script", {"code": command_code(bt, node.action, command_keys(bt)),
+                                         "name": xml_safe(bt.action_names[node.action])})
         return ET.Element("Action", {"ID": ids[node.action]})
     attrib: dict[str, str] = {}
     if isinstance(node, Inverter):
@@ -184,6 +215,16 @@ def _element(node: Node, bt: BehaviorTree, ids: list[str], keys: list[str],
 def _keys_comment(bt: BehaviorTree, keys: list[str]) -> str:
     lines = [f"    {key} = double(float(obs[{i}]))  ({name})"
              for i, (key, name) in enumerate(zip(keys, bt.feature_names, strict=True))]
+    if bt.commands is not None:
+        out = command_keys(bt)
+        units = [f" ({u})" if u else "" for u in bt.commands.units]
+        text = ("\n  Blackboard keys: set each before a tick, as the float32 observation widened "
+                "to double.\n" + "\n".join(lines) + "\n  Outputs, written by the command's "
+                "Script node on every tick: " + f"{out[0]} (the command's id), "
+                + ", ".join(f"{k}{u}" for k, u in zip(out[1:], units, strict=True))
+                + "\n  Commands: " + "; ".join(
+                    f"{i} = {name}" for i, name in enumerate(bt.action_names)) + "\n  ")
+        return comment_safe(text)
     text = ("\n  Blackboard keys: set each before a tick, as the float32 observation widened "
             "to double.\n" + "\n".join(lines) + "\n  Actions: " + ", ".join(
                 f"{ident} = {i}" for i, ident in enumerate(action_ids(bt.action_names))) + "\n  ")
@@ -208,7 +249,7 @@ def to_btcpp_xml(bt: BehaviorTree, tree_id: str = "MainTree", flavour: str = "po
         for name, kind, description in _PORTS:
             port = ET.SubElement(condition, "input_port", {"name": name, "type": kind})
             port.text = description
-    for ident in ids:
+    for ident in ids if bt.commands is None else ():  # commands: only built-in nodes
         ET.SubElement(model, "Action", {"ID": ident})
     ET.indent(root, space="  ")
     return _XML_DECLARATION + ET.tostring(root, encoding="unicode") + "\n"
@@ -232,11 +273,32 @@ def _script_condition(code: str, feature_of: dict[str, int]) -> Condition:
     return Condition(feature_of[key], op, threshold)
 
 
-def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, int]) -> Node:
+def _script_command(code: str, commands: tuple[list[str], Commands]) -> Node:
+    """A command's ``Script`` back to its action: the id and every value must match."""
+    keys, table = commands
+    parts = [p.split(":=") for p in code.split(";")]
+    assigned = {p[0].strip(): p[1].strip() for p in parts if len(p) == 2}
+    try:
+        action = int(assigned[keys[0]])
+        values = tuple(float(assigned[k]) for k in keys[1:])
+    except (KeyError, ValueError):
+        raise ValueError(f"unsupported Script code {code!r}; expected "
+                         f"'{keys[0]} := ID; {keys[1]} := VALUE; ...' as to_btcpp_xml writes"
+                         ) from None
+    if not 0 <= action < len(table.values) or table.values[action] != values:
+        raise ValueError(f"Script {code!r} writes a command that is not command {action} of "
+                         "the BT's command table")
+    return Action(action)
+
+
+def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, int],
+          commands: tuple[list[str], Commands] | None = None) -> Node:
     tag = element.tag
     ident = element.get("ID", "") if tag in ("Action", "Condition") else tag
     if ident == SCRIPT_CONDITION:
         return _script_condition(element.get("code", ""), feature_of)
+    if ident == "Script" and commands is not None:
+        return _script_command(element.get("code", ""), commands)
     if ident == CONDITION_ID:
         return Condition(int(element.attrib["feature"]), element.attrib["op"],
                          float(element.attrib["threshold"]))
@@ -248,7 +310,7 @@ def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, 
     if tag == "Action":
         raise ValueError(f"unknown action ID {ident!r}; this task's actions are "
                          f"{', '.join(action_of)}")
-    children = [_node(child, action_of, feature_of) for child in element]
+    children = [_node(child, action_of, feature_of, commands) for child in element]
     if tag == "Inverter":
         if len(children) != 1:
             raise ValueError(f"an Inverter has exactly one child, got {len(children)}")
@@ -265,13 +327,15 @@ def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, 
 
 def from_btcpp_xml(text: str, feature_names: Seq[str], action_names: Seq[str],
                    tree_id: str | None = None,
-                   value_labels: tuple[tuple[int, tuple[str, ...]], ...] = ()) -> BehaviorTree:
+                   value_labels: tuple[tuple[int, tuple[str, ...]], ...] = (),
+                   commands: Commands | None = None) -> BehaviorTree:
     """Read XML written by :func:`to_btcpp_xml` (either flavour) back into a BehaviorTree.
 
     ``tree_id`` defaults to the file's ``main_tree_to_execute``, else its only tree. Raises
     ``ValueError`` naming the problem for XML of another task (an unknown blackboard key or
     action ID) or nodes this package does not write. ``value_labels`` (the task's, or the
-    original tree's) only make the read tree's labels readable again.
+    original tree's) only make the read tree's labels readable again. ``commands``: the BT's
+    command table (continuous actions), whose ``Script`` nodes are read back as its actions.
     """
     try:
         root = ET.fromstring(text)
@@ -289,7 +353,9 @@ def from_btcpp_xml(text: str, feature_names: Seq[str], action_names: Seq[str],
         raise ValueError(f"a <BehaviorTree> has exactly one root node, got {len(trees[0])}")
     action_of = {ident: i for i, ident in enumerate(action_ids(action_names))}
     feature_of = {key: i for i, key in enumerate(blackboard_keys(feature_names))}
-    bt = BehaviorTree(_node(trees[0][0], action_of, feature_of),
-                      tuple(feature_names), tuple(action_names), tuple(value_labels))
+    shell = BehaviorTree(Action(0), tuple(feature_names), tuple(action_names), (), commands)
+    scripts = (command_keys(shell), commands) if commands is not None else None
+    bt = BehaviorTree(_node(trees[0][0], action_of, feature_of, scripts),
+                      tuple(feature_names), tuple(action_names), tuple(value_labels), commands)
     bt.validate()
     return bt

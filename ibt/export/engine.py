@@ -26,11 +26,26 @@ import behaviortreepy as btpy
 import numpy as np
 
 from ibt.bt.executors import as_features, decide_batch
-from ibt.bt.model import NO_DECISION, Action, BehaviorTree, Condition, Inverter, Node, iterate
+from ibt.bt.model import (
+    NO_DECISION,
+    Action,
+    BehaviorTree,
+    Commands,
+    Condition,
+    Inverter,
+    Node,
+    iterate,
+)
 from ibt.bt.model import Sequence as SequenceNode
 from ibt.evaluate.policies import BTPolicy
 from ibt.evaluate.rollouts import Rollout, rollout
-from ibt.export.btcpp import CONDITION_ID, action_ids, blackboard_keys, from_btcpp_xml
+from ibt.export.btcpp import (
+    CONDITION_ID,
+    action_ids,
+    blackboard_keys,
+    command_keys,
+    from_btcpp_xml,
+)
 from ibt.tasks.catalogue import Task
 
 GROOT_START_SECONDS = 0.2  # a Groot2Publisher destroyed right after it starts can hang
@@ -45,9 +60,9 @@ class EngineTree:
     """
 
     def __init__(self, xml: str, feature_names: Sequence[str], action_names: Sequence[str],
-                 source: str = "the XML") -> None:
+                 source: str = "the XML", commands: Commands | None = None) -> None:
         try:
-            self.bt = from_btcpp_xml(xml, feature_names, action_names)
+            self.bt = from_btcpp_xml(xml, feature_names, action_names, commands=commands)
         except ValueError as err:
             raise ValueError(f"{source}: {err}") from None
         if uses_check_feature(xml):
@@ -58,8 +73,11 @@ class EngineTree:
         self.action_ids = action_ids(action_names)
         self._fired = [NO_DECISION]
         self.actions_ticked = 0  # every action tick, the first of each tick and any later ones
+        # commands (continuous actions): the engine's own Script nodes write them to the
+        # blackboard, nothing is registered
+        self.command_keys = command_keys(self.bt) if commands is not None else None
         factory = btpy.BehaviorTreeFactory()
-        for index, ident in enumerate(self.action_ids):
+        for index, ident in enumerate(self.action_ids if commands is None else ()):
             factory.register_simple_action(ident, self._action(index))
         try:
             self.tree = factory.create_tree_from_text(xml)
@@ -85,8 +103,28 @@ class EngineTree:
         for key, value in zip(self.keys, values, strict=True):
             self.blackboard.set_double(key, value)
         self._fired[0] = NO_DECISION
+        if self.command_keys is not None:
+            self.blackboard.set_double(self.command_keys[0], NO_DECISION)
         self.tree.tick_once()
+        if self.command_keys is not None:
+            return int(self.blackboard.get_double(self.command_keys[0]))
         return self._fired[0]
+
+    def command(self) -> np.ndarray:
+        """The command values the last tick wrote to the blackboard (a BT with commands)."""
+        assert self.command_keys is not None
+        return np.array([self.blackboard.get_double(k) for k in self.command_keys[1:]],
+                        dtype=np.float32)
+
+    def act(self, features: np.ndarray) -> np.ndarray:
+        """One tick per row; the command vectors the engine wrote ``(n, dims)``."""
+        rows = np.atleast_2d(features)
+        out = []
+        for row in rows:
+            if self.tick(row) == NO_DECISION:
+                raise ValueError("no command was written on a tick")
+            out.append(self.command())
+        return np.asarray(out, dtype=np.float32)
 
     def decide(self, features: np.ndarray) -> np.ndarray:
         """One engine tick per row of ``features``; ``NO_DECISION`` where no action ran."""
@@ -109,9 +147,11 @@ def uses_check_feature(xml: str) -> bool:
                for tree in ET.fromstring(xml).iter("BehaviorTree") for e in tree.iter())
 
 
-def load_engine_tree(xml: str, task: Task, source: str = "the XML") -> EngineTree:
-    """:class:`EngineTree` for ``task``'s features and actions."""
-    return EngineTree(xml, task.feature_names, task.action_names, source)
+def load_engine_tree(xml: str, task: Task, source: str = "the XML",
+                     commands: Commands | None = None) -> EngineTree:
+    """:class:`EngineTree` for ``task``'s features and actions (``commands``: a Box task's BT,
+    whose action names are its commands' names: pass its ``action_names`` as a task view)."""
+    return EngineTree(xml, task.feature_names, task.action_names, source, commands)
 
 
 class EnginePolicy:
@@ -122,6 +162,8 @@ class EnginePolicy:
         self.engine = engine
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        if self.engine.command_keys is not None:  # a Box task: the command vectors
+            return self.engine.act(self.task.features(obs))
         return self.engine.decide(self.task.features(obs))
 
 

@@ -375,10 +375,12 @@ def plus_points(experts: dict[str, list[str]], headline: dict[str, int | None],
 
 
 def without_pending(points: list[Point], pending: list[list[Any]]) -> list[Point]:
-    """Drop points listed as ``[task, expert]``, ``[task, expert, method]`` or
-    ``[task, expert, method, leaves]`` (runs not computed yet)."""
+    """Drop points listed as ``[task, expert]``, ``[task, expert, method]``,
+    ``[task, expert, method, leaves]`` or ``[task, expert, method, leaves, seed]`` (runs not
+    computed yet)."""
     def listed(p: Point) -> bool:
-        keys = ([p.task, p.algo], [p.task, p.algo, p.method], [p.task, p.algo, p.method, p.leaves])
+        keys = ([p.task, p.algo], [p.task, p.algo, p.method], [p.task, p.algo, p.method, p.leaves],
+                [p.task, p.algo, p.method, p.leaves, p.seed])
         return any(list(k) in pending for k in keys)
 
     return [p for p in points if not listed(p)]

@@ -2,8 +2,9 @@
 
 Beyond the paper (issue 22). For one task, expert, seed and leaf limit:
 
-1. **seed trees**: the four paper methods' grid trees and Imitation-BT+'s tree at the task's
-   budget (a fixed set: the same cells whatever else the cache holds);
+1. **seed trees**: Imitation-BT+'s tree at the task's budget and the best of the four paper
+   methods' grid trees by their held-out selection score (a fixed set: the same cells whatever
+   else the cache holds), each cut down to the leaf limit by return;
 2. **structure search** (:func:`ibt.refine.structure.evolve`): splits, features, thresholds and
    leaves evolved on return under the leaf limit, helped by the expert's labels on the states
    the small trees visit;
@@ -29,7 +30,7 @@ from ibt.profiles import Config
 from ibt.refine.by_return import Refinement, refine
 from ibt.refine.structure import Evolution, evolve
 from ibt.runs.cache import load_or_compute
-from ibt.runs.front import SOURCE_METHODS, STRUCTURE, plus_run, source_run
+from ibt.runs.front import STRUCTURE, plus_run, ranked_sources
 from ibt.runs.grid import _bt_digest, tree_digest
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig, RefineConfig
@@ -60,9 +61,11 @@ def polish_config(cfg: Config, config: EvolveConfig) -> RefineConfig:
 
 
 def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
-    """Imitation-BT+'s tree at the task's budget, then the four paper methods' grid trees."""
-    trees = [plus_run(cfg, task, algo, seed, None).tree]
-    return trees + [source_run(cfg, task, algo, m, seed, None).best_tree for m in SOURCE_METHODS]
+    """Imitation-BT+'s tree at the task's budget, and the grid tree (of the four paper
+    methods) that scored best on its held-out selection episodes; the search cuts either down
+    to its leaf limit by return."""
+    best_grid = ranked_sources(cfg, task, algo, seed)[0][1].best_tree
+    return [plus_run(cfg, task, algo, seed, None).tree, best_grid]
 
 
 def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int

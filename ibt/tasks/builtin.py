@@ -157,11 +157,12 @@ LUNARLANDER = Task(
     # change worth its 3,700 episodes in a trial (DQN, seed 0), so it is left out
     refine=RefineConfig(stages=("cma", "cma"), episodes=80_000, cma_generations=130,
                         cma_episodes=24),
-    # Imitation-BT+S: 36,000 episodes of structure search and 16,000 of polish, about 12
-    # CPU-minutes a run here (a trial on DQN seed 0 at 22 leaves before the grid: 24,000
-    # search episodes took 459 CPU-s at 19,000 steps/s)
-    evolve=EvolveConfig(episodes=36_000, mu=4, lam=12, generation_episodes=20,
-                        refine_episodes=16_000),
+    # Imitation-BT+S: 24,000 episodes of structure search (its seed trees cut down by return
+    # first) and 12,000 of polish, about 8 CPU-minutes a run here; set after a trial on DQN
+    # seed 0 at 22 leaves (24,000 search episodes: 459 CPU-s at 19,000 steps/s), to fit this
+    # session's CPU
+    evolve=EvolveConfig(episodes=24_000, mu=4, lam=12, generation_episodes=20,
+                        refine_episodes=12_000),
     clip=Clip(400, 5, 110),
     front_target=FrontTarget(("dqn", "ppo"), 90.0, 100, rank=0),
     claim_group="stochastic",
@@ -265,3 +266,59 @@ def _package_delivery() -> Task:
 
 BUILTIN: tuple[Task, ...] = (CARTPOLE, ACROBOT, MOUNTAINCAR, LUNARLANDER, CLIFFWALKING,
                              FROZENLAKE, HIGHWAY, _package_delivery())
+
+# --- continuous actions (issue 25): each action dimension is a named command ----------------
+# Hyperparameters from rl-baselines3-zoo's hyperparams/{sac,ppo}.yml (the recipes named in each
+# row); quality bars are the zoo benchmark's (benchmark.md) mean - 2 std of the same algorithm,
+# rounded down to one decimal: SAC Pendulum-v1 -157.0 +- 88.7, SAC MountainCarContinuous-v0
+# 94.7 +- 1.1, PPO LunarLanderContinuous-v2 270.9 +- 32.1. LunarLanderContinuous's expert is
+# PPO: the zoo's SAC recipe (5e5 steps, 400x300 networks) ran at ~58 steps/s here (~2.5 h).
+_ZOO_SAC = "zoo:hyperparams/sac.yml"
+
+PENDULUM = Task(
+    name="Pendulum-v1", gym_id="Pendulum-v1",
+    feature_names=("cos_theta", "sin_theta", "angular_velocity"),
+    action_names=("torque",), action_low=(-2.0,), action_high=(2.0,), action_units=("N m",),
+    low=(-1.0, -1.0, -8.0), high=(1.0, 1.0, 8.0),
+    budget=TaskBudget(max_leaf_nodes=16, labels_per_iteration=2000, max_iterations=20),
+    experts=(
+        # SAC's default 256x256 networks (the zoo's recipe sets none)
+        ("sac", hp(2e4, source=_ZOO_SAC, net_arch=(256, 256), learning_rate=1e-3)),
+    ),
+    bar=QualityBar(min_return=-334.4),
+)
+
+MOUNTAINCAR_CONTINUOUS = Task(
+    name="MountainCarContinuous-v0", gym_id="MountainCarContinuous-v0",
+    feature_names=("position", "velocity"),
+    action_names=("force",), action_low=(-1.0,), action_high=(1.0,), action_units=("",),
+    low=(-1.2, -0.07), high=(0.6, 0.07),
+    budget=TaskBudget(max_leaf_nodes=4, labels_per_iteration=2000, max_iterations=20),
+    experts=(
+        ("sac", hp(5e4, source=_ZOO_SAC, net_arch=(64, 64),
+                   policy_kwargs={"log_std_init": -3.67}, learning_rate=3e-4,
+                   buffer_size=50_000, batch_size=512, ent_coef=0.1, train_freq=32,
+                   gradient_steps=32, gamma=0.9999, tau=0.01, learning_starts=0,
+                   use_sde=True)),
+    ),
+    bar=QualityBar(min_return=92.4),
+)
+
+LUNARLANDER_CONTINUOUS = Task(
+    name="LunarLanderContinuous-v3", gym_id="LunarLanderContinuous-v3",
+    feature_names=LUNARLANDER.feature_names,
+    # main_engine: off below 0, 50 % to 100 % throttle from 0 to 1; side_engine: the left
+    # booster below -0.5, the right above 0.5, off between (gymnasium's lunar_lander.py)
+    action_names=("main_engine", "side_engine"), action_low=(-1.0, -1.0),
+    action_high=(1.0, 1.0), action_units=("", ""),
+    low=LUNARLANDER.low, high=LUNARLANDER.high,
+    setup_module="Box2D",
+    budget=TaskBudget(max_leaf_nodes=16, labels_per_iteration=2000, max_iterations=20),
+    experts=(
+        ("ppo", hp(1e6, 16, source=_ZOO_PPO, n_steps=1024, batch_size=64, gae_lambda=0.98,
+                   gamma=0.999, n_epochs=4, ent_coef=0.01)),
+    ),
+    bar=QualityBar(min_return=206.7),
+)
+
+CONTINUOUS: tuple[Task, ...] = (PENDULUM, MOUNTAINCAR_CONTINUOUS, LUNARLANDER_CONTINUOUS)

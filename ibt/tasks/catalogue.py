@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from ibt.tasks.builtin import BUILTIN
-from ibt.tasks.settings import DEFAULT_MAX_LEAF_NODES, TaskBudget
+from ibt.tasks.builtin import BUILTIN, CONTINUOUS
+from ibt.tasks.settings import BOX_MAX_LEAF_NODES, DEFAULT_MAX_LEAF_NODES, TaskBudget
 from ibt.tasks.task import Task, sdl_video_driver
 
 __all__ = ["TASKS", "Task", "get_task", "import_env_module", "register_task", "resolve_task",
@@ -33,7 +33,7 @@ def register_task(task: Task) -> Task:
     return task
 
 
-for _task in BUILTIN:
+for _task in (*BUILTIN, *CONTINUOUS):
     register_task(_task)
 
 
@@ -74,14 +74,24 @@ def task_from_env(gym_id: str, **kwargs: Any) -> Task:
                          f"{err}); fix its constructor or its registered kwargs") from None
     obs_space, act_space = env.observation_space, env.action_space
     env.close()
-    if not isinstance(act_space, gym.spaces.Discrete):
+    box: dict[str, Any] = {}
+    if (isinstance(act_space, gym.spaces.Box) and len(act_space.shape) == 1
+            and np.isfinite(act_space.low).all() and np.isfinite(act_space.high).all()):
+        # continuous actions (issue 25): each dimension a command, the tree merged into few
+        n = act_space.shape[0]
+        actions = tuple(f"u{i}" for i in range(n))
+        box = {"action_low": tuple(map(float, act_space.low)),
+               "action_high": tuple(map(float, act_space.high)),
+               "budget": TaskBudget(max_leaf_nodes=BOX_MAX_LEAF_NODES)}
+    elif not isinstance(act_space, gym.spaces.Discrete):
         raise ValueError(f"{gym_id} has actions {act_space}; Imitation-BT needs a Discrete "
-                         "action space")
-    actions = tuple(f"a{i}" for i in range(int(act_space.n)))
+                         "action space or a flat Box with finite bounds")
+    else:
+        actions = tuple(f"a{i}" for i in range(int(act_space.n)))
     if isinstance(obs_space, gym.spaces.Discrete):
         return Task(gym_id, gym_id, ("state",), actions, (0,), (int(obs_space.n) - 1,),
                     kwargs=kwargs, discrete_state=True, integer_features=True,
-                    budget=TaskBudget(max_leaf_nodes=DEFAULT_MAX_LEAF_NODES))
+                    **{"budget": TaskBudget(max_leaf_nodes=DEFAULT_MAX_LEAF_NODES), **box})
     if not isinstance(obs_space, gym.spaces.Box):
         raise ValueError(f"{gym_id} observes {obs_space}; Imitation-BT needs a Box or Discrete "
                          "observation space")
@@ -89,7 +99,7 @@ def task_from_env(gym_id: str, **kwargs: Any) -> Task:
     high = np.clip(obs_space.high.reshape(-1), -10, 10)
     names = tuple(f"x{i}" for i in range(len(low)))
     return Task(gym_id, gym_id, names, actions, tuple(map(float, low)), tuple(map(float, high)),
-                kwargs=kwargs)
+                kwargs=kwargs, **box)
 
 
 def import_env_module(name: str) -> None:

@@ -13,7 +13,10 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 DEFAULT_MAX_LEAF_NODES = 16  #: the leaf limit of tasks without a budget (a readable BT)
-ALGOS = ("dqn", "ppo", "a2c")  #: the expert algorithms (Stable-Baselines3)
+ALGOS = ("dqn", "ppo", "a2c", "sac", "td3")  #: the expert algorithms (Stable-Baselines3)
+DISCRETE_ALGOS = ("dqn", "ppo", "a2c")  #: those the discrete tasks' experts are trained with
+CONTINUOUS_ALGOS = ("sac", "td3", "ppo")  #: those that act in a Box (continuous actions)
+BOX_MAX_LEAF_NODES = 8  #: the default leaf limit of a continuous task (a readable BT)
 NET_ARCH = (64, 64)  #: the paper's 2x64 MLP
 ZOO_DQN_NET = (256, 256)  #: the zoo's DQN network, where 2x64 missed the bar
 
@@ -47,14 +50,16 @@ class Hyperparams:
     source: str = "ours"  # "zoo:<file>" or "ours"
     net_arch: tuple[int, ...] = NET_ARCH
     train_env: tuple[tuple[str, Any], ...] = ()  # env kwargs used while training only
+    policy_kwargs: tuple[tuple[str, Any], ...] = ()  # the zoo's policy_kwargs beside net_arch
 
 
 def hp(timesteps: float, n_envs: int = 1, normalize: bool | str = False, source: str = "ours",
        net_arch: tuple[int, ...] = NET_ARCH, train_env: dict[str, Any] | None = None,
-       **kwargs: Any) -> Hyperparams:
+       policy_kwargs: dict[str, Any] | None = None, **kwargs: Any) -> Hyperparams:
     """A :class:`Hyperparams` row written like the zoo's YAML (keyword arguments)."""
     return Hyperparams(int(timesteps), n_envs, normalize, tuple(sorted(kwargs.items())), source,
-                       net_arch, tuple(sorted((train_env or {}).items())))
+                       net_arch, tuple(sorted((train_env or {}).items())),
+                       tuple(sorted((policy_kwargs or {}).items())))
 
 
 REFINE_STAGES = ("cma", "leaves", "prune", "shrink")

@@ -72,12 +72,28 @@ class Task:
     claim_group: str | None = None  # "simple" or "stochastic" (the paper's claims)
     render_driver: str | None = None  # SDL video driver its rgb_array frames need
     scripted_policy: str | None = None  # "module:function", the bar's reference policy
+    # --- continuous actions (a gymnasium Box): empty for a task with discrete actions ---
+    # the Box's bounds, one per command dimension (``action_names`` then names the dimensions)
+    action_low: tuple[float, ...] = ()
+    action_high: tuple[float, ...] = ()
+    action_units: tuple[str, ...] = ()  # one unit per dimension ("" where none), for readers
 
     def __post_init__(self) -> None:
         if isinstance(self.kwargs, Mapping):
             object.__setattr__(self, "kwargs", tuple(sorted(self.kwargs.items())))
-        for name in ("feature_names", "action_names", "low", "high"):
+        for name in ("feature_names", "action_names", "low", "high", "action_low",
+                     "action_high", "action_units"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
+        if self.action_low or self.action_high:
+            n = len(self.action_names)
+            if not (len(self.action_low) == len(self.action_high) == n) or any(
+                    not lo < hi for lo, hi in zip(self.action_low, self.action_high,
+                                                  strict=True)):
+                raise ValueError(f"{self.name}: action_low and action_high must give one "
+                                 f"interval low < high per action dimension ({n})")
+            if self.action_units and len(self.action_units) != n:
+                raise ValueError(f"{self.name}: action_units must name one unit per action "
+                                 f"dimension ({n})")
         if self.claim_group is not None and self.claim_group not in CLAIM_GROUPS:
             raise ValueError(f"claim_group must be one of {CLAIM_GROUPS}, got "
                              f"{self.claim_group!r}")
@@ -88,7 +104,24 @@ class Task:
 
     @property
     def n_actions(self) -> int:
+        """The number of discrete actions, or of action dimensions of a Box task."""
         return len(self.action_names)
+
+    @property
+    def continuous(self) -> bool:
+        """Whether the task acts in a Box (its actions are vectors, not indices)."""
+        return bool(self.action_low)
+
+    def check_action(self, action: np.ndarray) -> np.ndarray:
+        """A Box task's action vectors ``(n, dims)`` as float32, checked: finite and inside
+        the Box; ``ValueError`` names the first one outside."""
+        a = np.asarray(action, dtype=np.float64).reshape(-1, self.n_actions)
+        low, high = np.asarray(self.action_low), np.asarray(self.action_high)
+        bad = ~np.isfinite(a).all(axis=1) | (a < low).any(axis=1) | (a > high).any(axis=1)
+        if bad.any():
+            raise ValueError(f"action {a[bad][0].tolist()} is outside {self.name}'s action "
+                             f"space [{list(self.action_low)}, {list(self.action_high)}]")
+        return a.astype(np.float32)
 
     @property
     def env_kwargs(self) -> dict[str, Any]:

@@ -1,0 +1,164 @@
+"""Interactive distillation of an expert with continuous actions into a regression tree.
+
+The loop of :mod:`ibt.distill.loop` with a multi-output ``DecisionTreeRegressor`` fitted on the
+expert's action vectors (issue 25): each iteration rolls out the mixed policy (per step the
+expert's action with probability beta_i, else the current tree's) until the iteration's label
+budget is spent, the expert labels every visited state, the data are aggregated, a tree is
+fitted and scored on held-out episodes; the best tree (highest mean return, then fewest nodes,
+then earliest) is the result. The methods are those of :data:`ibt.distill.loop.METHODS` (same
+schedules); a weighted method resamples the data with probability proportional to the
+expert's critic weight of each state, :meth:`ibt.experts.expert.Expert.label`: the mean loss
+``Q(s, pi*(s)) - Q(s, a)`` of random actions ``a`` (SAC/TD3), or of their log-likelihood
+(PPO), i.e. how much a wrong action costs there.
+
+A regression tree's leaves are command vectors; :mod:`ibt.synth.commands` merges them into a
+few named commands so the paper's synthesis applies to command ids.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from sklearn.tree import DecisionTreeRegressor
+from tqdm import tqdm
+
+from ibt.distill.loop import METHODS, Distillation, mix
+from ibt.evaluate.rollouts import TRAIN_SEED_BASE, rollout, selection_seeds
+from ibt.experts.expert import Expert
+from ibt.tasks.settings import BOX_MAX_LEAF_NODES
+from ibt.tasks.task import Task
+
+DEFAULT_ITERATIONS = 20  #: iterations where the task's budget names none
+
+
+@dataclass(frozen=True)
+class BoxDistillConfig:
+    """Everything that determines a continuous distillation run (with the expert and seed)."""
+
+    method: str = "dagger"
+    n_iterations: int = DEFAULT_ITERATIONS
+    labels_per_iteration: int = 2000
+    selection_episodes: int = 20
+    max_leaf_nodes: int | None = BOX_MAX_LEAF_NODES
+    max_depth: int | None = None
+    collect_envs: int = 2
+    eval_envs: int = 20
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; expected one of "
+                             f"{', '.join(METHODS)}")
+        if self.n_iterations < 1 or self.labels_per_iteration < 1:
+            raise ValueError("n_iterations and labels_per_iteration must be positive")
+        if self.max_leaf_nodes is not None and self.max_leaf_nodes < 2:
+            raise ValueError(f"max_leaf_nodes must be at least 2, got {self.max_leaf_nodes}")
+
+    def as_params(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def for_task(cls, task: Task, **overrides: Any) -> BoxDistillConfig:
+        """The task's budget (its catalogue entry), with ``overrides`` on top."""
+        b = task.budget
+        base = {"max_leaf_nodes": b.max_leaf_nodes, "max_depth": b.max_depth,
+                "labels_per_iteration": b.labels_per_iteration,
+                "n_iterations": b.max_iterations or DEFAULT_ITERATIONS}
+        return cls(**{**base, **overrides})
+
+
+def regression_signature(tree: DecisionTreeRegressor) -> bytes:
+    """A fitted regression tree's decision function as bytes: equal bytes, equal actions."""
+    t = tree.tree_
+    head = np.array([t.node_count, t.n_outputs, tree.n_features_in_], dtype=np.int64)
+    parts = [head, t.feature, t.threshold, t.children_left, t.children_right, t.value]
+    return b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
+
+
+def tree_actions(tree: DecisionTreeRegressor, features: np.ndarray) -> np.ndarray:
+    """The tree's action vectors ``(n, dims)`` (float32) for a batch of feature rows."""
+    x = np.asarray(features, dtype=np.float32)
+    return np.asarray(tree.predict(x), dtype=np.float32).reshape(len(x), -1)
+
+
+def box_tree_policy(task: Task, tree: DecisionTreeRegressor):
+    """``act`` of a regression tree on raw observations."""
+    return lambda obs: tree_actions(tree, task.features(obs))
+
+
+def distill_box(task: Task, expert: Expert, config: BoxDistillConfig, seed: int = 0, *,
+                progress: bool = True) -> Distillation:
+    """Run the interactive loop on a Box task; see the module docstring."""
+    if not task.continuous or not expert.continuous:
+        raise ValueError(f"{task.name} acts in a {'Box' if task.continuous else 'Discrete'} "
+                         "space; distill_box is for Box tasks and their experts")
+    if expert.n_actions != task.n_actions:
+        raise ValueError(f"the expert acts in {expert.n_actions} dimensions, {task.name} in "
+                         f"{task.n_actions}")
+    rng = np.random.default_rng(seed)
+    method = METHODS[config.method]
+    n = config.n_iterations
+    record = Distillation(task.name, expert.algo, seed, config.as_params())
+    features: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
+    weights: list[np.ndarray] = []
+    scored: dict[bytes, tuple[float, float]] = {}
+    eval_seeds = selection_seeds(config.selection_episodes, seed)
+    learner: DecisionTreeRegressor | None = None
+    start = time.perf_counter()
+    bar = tqdm(range(n), desc=f"{config.method} {task.name}/{expert.algo} s{seed}",
+               disable=not progress, leave=False)
+    n_labels = 0
+    for i in bar:
+        beta = method.schedule(i, n)
+
+        def act(obs: np.ndarray, beta: float = beta,
+                learner: DecisionTreeRegressor | None = learner) -> np.ndarray:
+            if method.weighted:
+                expert_actions, weight = expert.label(obs)
+            else:  # the weights are not used: one forward pass
+                expert_actions, weight = expert.act(obs), np.ones(len(obs))
+            features.append(task.features(obs))
+            labels.append(expert_actions)
+            weights.append(weight)
+            if learner is None or beta >= 1.0:
+                return expert_actions
+            use_expert = mix(np.arange(len(obs)), np.full(len(obs), -1), beta, rng) >= 0
+            return np.where(use_expert[:, None], expert_actions,
+                            tree_actions(learner, features[-1]))
+
+        train_seeds = [TRAIN_SEED_BASE + 100_000 * seed + 1_000 * i + k for k in range(1_000)]
+        rollout(task, act, train_seeds, n_envs=config.collect_envs,
+                budget=config.labels_per_iteration)
+        x = np.concatenate(features)
+        y = np.concatenate(labels)
+        new_labels, n_labels = len(y) - n_labels, len(y)
+        if method.weighted:
+            w = np.concatenate(weights)
+            p = w / w.sum() if w.sum() > 0 else None
+            idx = rng.choice(len(x), size=len(x), replace=True, p=p)
+            x, y = x[idx], y[idx]
+        tree = DecisionTreeRegressor(max_leaf_nodes=config.max_leaf_nodes,
+                                     max_depth=config.max_depth, random_state=seed)
+        tree.fit(x, y)
+        learner = tree
+        key = regression_signature(tree)
+        if key not in scored:
+            result = rollout(task, box_tree_policy(task, tree), eval_seeds,
+                             n_envs=config.eval_envs)
+            scored[key] = (result.mean, result.std)
+        mean, std = scored[key]
+        record.trees.append(tree)  # a regressor here (the record holds any fitted tree)
+        record.iterations.append({
+            "iteration": i, "beta": beta, "labels": new_labels, "dataset": n_labels,
+            "nodes": int(tree.tree_.node_count), "leaves": int(tree.get_n_leaves()),
+            "selection_mean": mean, "selection_std": std,
+        })
+        bar.set_postfix(best=max(s for s, _ in scored.values()), beta=f"{beta:.2f}")
+    record.best_index = max(
+        range(n), key=lambda k: (record.iterations[k]["selection_mean"],
+                                 -record.iterations[k]["nodes"], -k))
+    record.wall_seconds = time.perf_counter() - start
+    return record
