@@ -49,7 +49,8 @@ def test_an_upgraded_package_misses(tmp_path, demo, monkeypatch):
     calls: list[int] = []
     load_or_compute("demo", {"a": 1}, _count(calls), cache_dir=tmp_path, codec="json")
     real = cache.key_packages()
-    assert set(real) == {"gymnasium", "highway-env", "scikit-learn", "stable-baselines3"}
+    assert set(real) == {"gymnasium", "highway-env", "numpy", "scikit-learn", "stable-baselines3",
+                         "torch"}
     monkeypatch.setattr(cache, "key_packages", lambda: {**real, "scikit-learn": "99.0"})
     monkeypatch.setattr(cache_admin, "key_packages", lambda: {**real, "scikit-learn": "99.0"})
     assert not is_cached("demo", {"a": 1}, cache_dir=tmp_path)

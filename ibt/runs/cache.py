@@ -52,7 +52,7 @@ CODECS = payloads.CODECS  # codec name -> payloads.Codec
 TRACKED_PACKAGES = ("numpy", "scikit-learn", "stable-baselines3", "torch", "gymnasium", "pyeda",
                     "py-trees", "highway-env")
 #: Packages whose upgrade can change a cached result: their versions are part of every key.
-KEY_PACKAGES = ("gymnasium", "highway-env", "scikit-learn", "stable-baselines3")
+KEY_PACKAGES = ("gymnasium", "highway-env", "numpy", "scikit-learn", "stable-baselines3", "torch")
 
 #: The code version of every cache kind, part of each key. Bump a kind's number whenever its
 #: computation changes (the loop, an environment's dynamics, what the payload holds): every
