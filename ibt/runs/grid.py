@@ -349,7 +349,8 @@ def speed_benchmark(cfg: Config, task: str | Task, algo: str, seed: int) -> pd.D
 
     rows = load_or_compute("speed", params, compute, cache_dir=cfg.cache_dir, codec="json",
                            refresh=cfg.refresh)
-    return pd.DataFrame(rows)
+    # the columns in their own order (a JSON payload sorts its keys)
+    return pd.DataFrame(rows)[["executor", "mode", "decisions_per_second"]]
 
 
 def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "bc"
