@@ -42,10 +42,11 @@ def test_growing_the_key_packages_rekeys_entries_written_under_the_installed_ver
         return {"x": 1}
 
     cache.load_or_compute("tree-eval", {"a": 1}, compute, cache_dir=tmp_path, codec="json")
-    grown = (*cache.KEY_PACKAGES, "numpy", "torch")
+    assert "pyeda" not in cache.KEY_PACKAGES and "pyeda" in cache.TRACKED_PACKAGES
+    grown = (*cache.KEY_PACKAGES, "pyeda")  # as numpy and torch joined them
     monkeypatch.setattr(cache, "KEY_PACKAGES", grown)
     monkeypatch.setattr(cache_admin, "KEY_PACKAGES", grown)
-    # Expect: the old entry is now stale (its key lacks numpy and torch) ...
+    # Expect: the old entry is now stale (its key lacks the new package) ...
     assert [e.status for e in cache_admin.entries(tmp_path)] == ["stale"]
     report = cache_admin.migrate(tmp_path)
     # ... and after the migration it is current and a lookup hits it without computing
