@@ -597,6 +597,11 @@ def package_delivery(frame: np.ndarray, node_types: pd.DataFrame, performance: p
     return fig
 
 
+def _anchor_label(source: str) -> str:
+    """An anchor's legend entry: published numbers, unless its source says it was run here."""
+    return source if source.endswith("run here") else f"{source} (published)"
+
+
 def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.DataFrame,
                          path: str | Path | None = None, columns: int = 2) -> plt.Figure:
     """Retention against BT nodes, every method, one panel per task (the front, notebook 07).
@@ -635,8 +640,8 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
             marker = ("*", "X", "P", "s")[sources.index(anchor.source) % 4]
             handle = ax.scatter([anchor.tree_nodes], [anchor.retention_norm], marker=marker,
                                 s=110 if marker == "*" else 60, color="black", zorder=5,
-                                label=f"{anchor.source} (published)")
-            handles.setdefault(f"{anchor.source} (published)", handle)
+                                label=_anchor_label(anchor.source))
+            handles.setdefault(_anchor_label(anchor.source), handle)
         ax.axhline(100, color="black", lw=0.8, ls=":")
         ax.axhline(98, color=GREY, lw=0.8, ls="--")
         ax.set_xscale("log")
@@ -655,8 +660,9 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
                ncol=min(4, len(handles)), bbox_to_anchor=(0.5, 1.0), frameon=False)
     caption = ("A line per method through its leaf limits: mean over seeds, error bars the "
                "range (min to max) over seeds; faint dots are single seeds. BT nodes: the "
-               "smallest verified BT of each tree. Stars: published trees (node counts of "
-               "trees, not BTs), on our scale. Dotted: the expert; dashed: 98 %.")
+               "smallest verified BT of each tree. Black marks: published trees, or trees "
+               "run here (node counts of trees, not BTs), on our scale. Dotted: the expert; "
+               "dashed: 98 %.")
     fig.tight_layout(rect=(0, 0.0, 1, 0.94))
     fig.text(0.5, 0.0, _wrap(caption, 110), ha="center", va="top", fontsize=9)
     if path is not None:

@@ -77,13 +77,12 @@ ANCHORS = (
            std_return=None, max_bt_nodes=7),
     # Kohler et al.'s interpretable-rl-zoo: CART trees distilled by DAgger from the SB3-zoo
     # PPO expert (KohlerHECTOR/interpretable-rl-zoo), its trees run here on LunarLander-v3 on
-    # 50 episodes each; a CART of L leaves has 2L-1
-    # nodes
-    Anchor("interpretable-rl-zoo CART", "LunarLander-v3", nodes=15, leaves=8, mean_return=17.2,
-           std_return=None),
-    Anchor("interpretable-rl-zoo CART", "LunarLander-v3", nodes=31, leaves=16,
+    # 50 episodes each; a CART of L leaves has 2L-1 nodes
+    Anchor("interpretable-rl-zoo CART, run here", "LunarLander-v3", nodes=15, leaves=8,
+           mean_return=17.2, std_return=None),
+    Anchor("interpretable-rl-zoo CART, run here", "LunarLander-v3", nodes=31, leaves=16,
            mean_return=139.4, std_return=None),
-    Anchor("interpretable-rl-zoo CART", "LunarLander-v3", nodes=63, leaves=32,
+    Anchor("interpretable-rl-zoo CART, run here", "LunarLander-v3", nodes=63, leaves=32,
            mean_return=187.8, std_return=132.6),
 )
 
