@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
@@ -117,6 +117,15 @@ class Population:
         return self.structure.with_parameters(self.thresholds[i], self.actions[i])
 
 
+class Batch(Protocol):
+    """Trees decided side by side: row ``i`` is decided by member ``members[i]``
+    (:class:`Population` here, trees of different shapes in :mod:`ibt.refine.structure`)."""
+
+    def __len__(self) -> int: ...
+
+    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray: ...
+
+
 class _Episodes:
     """Hands out fresh refinement episode seeds and counts what was spent."""
 
@@ -137,7 +146,7 @@ class _Episodes:
         self.next_seed += n
         return seeds
 
-    def score(self, population: Population, seeds: list[int], *, count: bool = True
+    def score(self, population: Batch, seeds: list[int], *, count: bool = True
               ) -> np.ndarray:
         """Returns ``(members, episodes)``: every member on every seed."""
         k = len(seeds)

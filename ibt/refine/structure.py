@@ -38,6 +38,7 @@ from sklearn.tree import DecisionTreeClassifier
 from tqdm import tqdm
 
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout, selection_seeds
+from ibt.refine.by_return import _Episodes, _prune_stage
 from ibt.refine.tree_arrays import TreeArrays, _from_nested
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -117,38 +118,18 @@ class Forest:
         return self.action[members, node]
 
 
-class _Budget:
-    """Fresh refinement episodes, counted."""
+class _Budget(_Episodes):
+    """Fresh refinement episodes of the search (its own seed block), counted; trees of any
+    shapes are scored side by side as a :class:`Forest`."""
 
     def __init__(self, task: Task, seed: int, config: EvolveConfig, bar: Any) -> None:
-        self.task, self.config, self.bar = task, config, bar
+        super().__init__(task, seed, config, bar)  # type: ignore[arg-type]
         self.next_seed = EVOLVE_SEED_BASE + 1_000_000 * seed
-        self.used = self.steps = 0
 
-    @property
-    def left(self) -> int:
-        return self.config.episodes - self.used
-
-    def fresh(self, n: int) -> list[int]:
-        seeds = list(range(self.next_seed, self.next_seed + n))
-        self.next_seed += n
-        return seeds
-
-    def score(self, trees: list[TreeArrays], seeds: list[int], *, count: bool = True
-              ) -> np.ndarray:
+    def score_trees(self, trees: list[TreeArrays], seeds: list[int], *, count: bool = True
+                    ) -> np.ndarray:
         """``(trees, episodes)`` returns, every tree on every seed."""
-        forest, k = Forest(trees), len(seeds)
-
-        def act(obs: np.ndarray, episodes: np.ndarray) -> np.ndarray:
-            return forest.decide(self.task.features(obs), episodes // k)
-
-        result = rollout(self.task, act, [s for _ in trees for s in seeds],
-                         n_envs=self.config.n_envs, indexed=True)
-        if count:
-            self.used += len(trees) * k
-            self.steps += int(result.lengths.sum())
-            self.bar.update(len(trees) * k)
-        return result.returns.reshape(len(trees), k)
+        return self.score(Forest(trees), seeds, count=count)
 
     def visit(self, tree: TreeArrays, n_episodes: int) -> np.ndarray:
         """States the tree visits on ``n_episodes`` fresh episodes (counted)."""
@@ -337,17 +318,11 @@ def _shrink(tree: TreeArrays, config: EvolveConfig, budget: _Budget) -> TreeArra
     LunarLander tree at 21 leaves fell from 226 to about 0)."""
     if tree.n_leaves <= config.max_leaves:
         return tree
-    from ibt.refine.by_return import _Episodes, _prune_stage
     from ibt.tasks.settings import RefineConfig
 
     cut = RefineConfig(stages=("shrink",), episodes=max(budget.left, 1), sweep_episodes=4,
                        max_leaves=config.max_leaves, n_envs=config.n_envs)
-    episodes = _Episodes(budget.task, 0, cut, budget.bar)
-    episodes.next_seed = budget.next_seed  # the search's own fresh episodes
-    shrunk, _ = _prune_stage(tree, cut, episodes, optional=False)
-    budget.next_seed = episodes.next_seed
-    budget.used += episodes.used
-    budget.steps += episodes.steps
+    shrunk, _ = _prune_stage(tree, cut, budget, optional=False)
     return shrunk
 
 
@@ -382,7 +357,8 @@ def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
             if child.n_leaves <= config.max_leaves:
                 children.append(child)
         contenders = parents + children
-        means = budget.score(contenders, budget.fresh(config.generation_episodes)).mean(axis=1)
+        means = budget.score_trees(contenders, budget.fresh(config.generation_episodes))
+        means = means.mean(axis=1)
         order = sorted(range(len(contenders)),
                        key=lambda i: (-means[i], contenders[i].n_leaves, i))
         parents = [contenders[i] for i in order[:config.mu]]
@@ -402,7 +378,7 @@ def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
         if len(pool) >= config.finalists:
             break
     held_out = selection_seeds(config.selection_episodes, seed, offset=EVOLVE_SELECTION_OFFSET)
-    scores = budget.score(pool, held_out, count=False).mean(axis=1)
+    scores = budget.score_trees(pool, held_out, count=False).mean(axis=1)
     record.finalists = pool
     record.selection_means = [float(s) for s in scores]
     record.best_index = max(range(len(pool)), key=lambda i: (scores[i], -pool[i].n_leaves, -i))
