@@ -3,6 +3,21 @@ does not (what :meth:`ibt.bt.model.BehaviorTree.validate` reports).
 
 Regions are unions of boxes over the features; the acting region of the root is
 under-approximated and its complement searched for an uncovered box.
+
+**Relational conditions** (issue 26). Each distinct linear form of the BT is one more
+coordinate of the boxes, its *derived value* (column ``n_features + k``), treated as a free
+variable: a box over observed features and derived values holds every state whose features and
+computed forms lie in it. A proof that the boxes cover every point of this larger space covers
+every state (each state is one such point), so the proof stays sound; it is also complete for
+every BT synthesised from a relational tree, since those are exact on the larger space (the
+synthesisers read the derived columns as features). A derived value is a double compared with
+the condition's threshold as it is (no float32 snapping). A gap the search finds there may hold
+no real state (its forms contradict each other or its features): the gap is then searched for a
+state with a linear program (:mod:`ibt.bt.polytope`); the state found, or the gap's best guess,
+is returned, and :meth:`~ibt.bt.model.BehaviorTree.validate` refuses the BT either way, saying
+that the proof failed where no state reaching no action was found. So a hand-written BT whose
+guards cover the plane only geometrically (``x - y <= 0`` beside ``y - x < 0``) is refused:
+end its root with a default action.
 """
 
 from __future__ import annotations
@@ -12,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ibt.bt.linear import LinearForm
 from ibt.bt.model import (
     Action,
     BehaviorTree,
@@ -99,15 +115,24 @@ def _and(a: list[Box] | None, b: list[Box] | None) -> list[Box] | None:
     return out if len(out) <= MAX_BOXES else None
 
 
-def _truth(node: Node, negate: bool = False) -> list[Box] | None:
+Columns = dict[LinearForm, int]  # each linear form of a BT -> its derived coordinate
+
+
+def _truth(node: Node, negate: bool = False, columns: Columns | None = None
+           ) -> list[Box] | None:
     """Where an action-free subtree succeeds (fails, if ``negate``); None if too large."""
+    if isinstance(node, Condition) and node.form is not None:
+        assert columns is not None
+        below = (node.op == "<=") != negate
+        key, t = columns[node.form], node.threshold  # a double compared as it is
+        return [{key: (-math.inf, t) if below else (t, math.inf)}]
     if isinstance(node, Condition):
         t = _snap(node.threshold)
         below = (node.op == "<=") != negate
         return [{node.feature: (-math.inf, t) if below else (t, math.inf)}]
     if isinstance(node, Inverter):
-        return _truth(node.child, not negate)
-    parts = [_truth(child, negate) for child in getattr(node, "children", ())]
+        return _truth(node.child, not negate, columns)
+    parts = [_truth(child, negate, columns) for child in getattr(node, "children", ())]
     if isinstance(node, Sequence) != negate:  # a conjunction
         out: list[Box] | None = [{}]
         for part in parts:
@@ -119,24 +144,24 @@ def _truth(node: Node, negate: bool = False) -> list[Box] | None:
     return union if len(union) <= MAX_BOXES else None
 
 
-def _acting(node: Node, memo: dict[int, _Facts]) -> list[Box]:
+def _acting(node: Node, memo: dict[int, _Facts], columns: Columns | None = None) -> list[Box]:
     """States on which a tick of ``node`` surely reaches an action (an under-approximation)."""
     facts = _facts(node, memo)
     if facts.acts:
         return [{}]
     if isinstance(node, Inverter):
-        return _acting(node.child, memo)
+        return _acting(node.child, memo, columns)
     if not isinstance(node, Fallback | Sequence):
         return []
     sequence = isinstance(node, Sequence)
     out: list[Box] = []
     reach: list[Box] | None = [{}]  # states that reach this child or have already acted
     for child in node.children:
-        acting = _acting(child, memo)
+        acting = _acting(child, memo, columns)
         out += [m for r in reach or () for b in acting if (m := _meet(r, b)) is not None]
         kid = _facts(child, memo)
         if not kid.has_action:
-            reach = _and(reach, _truth(child, negate=not sequence))
+            reach = _and(reach, _truth(child, negate=not sequence, columns=columns))
         elif not (kid.succeeds if sequence else kid.guarded):
             break
         if not reach or len(out) > MAX_BOXES:
@@ -184,9 +209,16 @@ def unreached_state(tree: BehaviorTree) -> np.ndarray | None:
     memo: dict[int, _Facts] = {}
     if _facts(tree.root, memo).acts:
         return None
-    region = _uncovered(_acting(tree.root, memo))
+    forms = sorted({node.form for node in tree.nodes()
+                    if isinstance(node, Condition) and node.form is not None})
+    columns = {form: tree.n_features + k for k, form in enumerate(forms)}
+    region = _uncovered(_acting(tree.root, memo, columns))
     if region is None:
         return None
+    if any(key >= tree.n_features for key in region):  # a gap with derived values
+        from ibt.bt.polytope import region_state
+
+        return region_state(tree.n_features, region, forms)
     state = np.zeros(tree.n_features, dtype=np.float32)
     for feature, (lo, hi) in region.items():
         state[feature] = hi if math.isfinite(hi) else (

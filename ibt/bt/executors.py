@@ -2,7 +2,9 @@
 vectorised NumPy pass over many states) and ``to_py_trees`` (the reference library).
 
 Comparisons are made in double precision on observations cast to float32 first, exactly as
-scikit-learn's trees decide (see :mod:`ibt.bt.model`).
+scikit-learn's trees decide (see :mod:`ibt.bt.model`); a relational condition computes its
+linear form from those doubles by the floating-point rule of :mod:`ibt.bt.linear`
+(:meth:`ibt.bt.model.Condition.holds`, shared by the three executors).
 
 **NaN and infinity have one meaning: they are refused.** Every executor reads observations
 through :func:`as_features`, which raises :class:`NonFiniteObservation` (a ``ValueError``
@@ -77,9 +79,7 @@ def decide_batch(root: Node, features: np.ndarray, *, finite: bool = True) -> np
 def _tick_mask(node: Node, x: np.ndarray, active: np.ndarray, decision: np.ndarray) -> np.ndarray:
     """Tick ``node`` on the rows in ``active``; return the success mask (False off ``active``)."""
     if isinstance(node, Condition):
-        column = x[:, node.feature]
-        hit = column <= node.threshold if node.op == "<=" else column > node.threshold
-        return active & hit
+        return active & node.holds(x)
     if isinstance(node, Action):
         undecided = active & (decision == NO_DECISION)
         decision[undecided] = node.action
@@ -129,8 +129,7 @@ def tick(tree: BehaviorTree, features: Seq[float] | np.ndarray) -> tuple[int, li
     def visit(position: int, depth: int) -> bool:
         node, children = nodes[position]
         if isinstance(node, Condition):
-            value = x[node.feature]
-            ok = bool(value <= node.threshold if node.op == "<=" else value > node.threshold)
+            ok = bool(node.holds(x))
         elif isinstance(node, Action):
             if decision[0] == NO_DECISION:
                 decision[0] = node.action
@@ -175,9 +174,7 @@ def to_py_trees(tree: BehaviorTree, features: np.ndarray | None = None):
             self.node = node
 
         def update(self):
-            value = as_features(io["features"])[self.node.feature]
-            hit = value <= self.node.threshold if self.node.op == "<=" else (
-                value > self.node.threshold)
+            hit = bool(self.node.holds(as_features(io["features"])))
             return Status.SUCCESS if hit else Status.FAILURE
 
     class _Action(py_trees.behaviour.Behaviour):

@@ -6,7 +6,10 @@ A synthesised policy is a tree of small frozen dataclasses:
   (same semantics; ``Selector`` names the root, ``Fallback`` an inner choice between rules);
 * ``Sequence``: tick children in order, fail on the first failure;
 * ``Inverter``: flip its child's status;
-* ``Condition``: succeeds when ``obs[feature] op threshold`` with ``op`` in ``<=`` / ``>``;
+* ``Condition``: succeeds when ``obs[feature] op threshold`` with ``op`` in ``<=`` / ``>``, or,
+  for a *relational* condition (issue 26), ``w1 * obs[i] + w2 * obs[j] op threshold`` (its
+  ``form``, a :class:`ibt.bt.linear.LinearForm`, computed in double by the floating-point rule
+  of :mod:`ibt.bt.linear`);
 * ``Action``: succeeds and is the decision.
 
 Policies here are reactive (the paper's scope): actions finish within one tick, so RUNNING never
@@ -30,6 +33,8 @@ from typing import Any, Union
 
 import numpy as np
 
+from ibt.bt.linear import LinearForm
+
 OPS = ("<=", ">")
 MAX_DEPTH = 100  # levels below the root a BT may have (the committed ones have at most 7)
 MAX_NODES = 100_000  # nodes a BT may have (the committed ones have at most 313)
@@ -39,11 +44,18 @@ NO_DECISION = -1
 
 @dataclass(frozen=True)
 class Condition:
-    """``obs[feature] <= threshold`` (op ``<=``) or ``obs[feature] > threshold`` (op ``>``)."""
+    """``obs[feature] <= threshold`` (op ``<=``) or ``obs[feature] > threshold`` (op ``>``).
+
+    A relational condition has a ``form`` (``w1 * obs[i] + w2 * obs[j]``) and compares its
+    double value with ``threshold``; its ``feature`` is then the form's first feature ``i``
+    (build one with :meth:`relational`). Every reader of a condition's value goes through
+    :meth:`value` / :meth:`holds`, which know both shapes.
+    """
 
     feature: int
     op: str
     threshold: float
+    form: LinearForm | None = None
 
     def __post_init__(self) -> None:
         if self.op not in OPS:
@@ -51,8 +63,43 @@ class Condition:
         # normalised to plain int/float: NumPy scalars from scikit-learn compare equal anyway
         object.__setattr__(self, "feature", _index(self.feature, "a condition's feature"))
         object.__setattr__(self, "threshold", _finite(self.threshold))
+        if self.form is not None:
+            if not isinstance(self.form, LinearForm):
+                raise ValueError(f"a condition's form must be a LinearForm, got {self.form!r}")
+            if self.feature != self.form.i:
+                raise ValueError(f"a relational condition's feature is its form's first "
+                                 f"feature {self.form.i}, got {self.feature}; build it with "
+                                 "Condition.relational(form, op, threshold)")
+            if not math.isfinite(FLOAT32_MAX * (abs(self.form.w1) + abs(self.form.w2))):
+                raise ValueError(f"the weights of {self.form} are too large: a form must stay "
+                                 "finite in double on every float32 observation")
 
     type = "condition"
+
+    @classmethod
+    def relational(cls, form: LinearForm, op: str, threshold: float) -> Condition:
+        """``form op threshold``: a relational condition."""
+        return cls(form.i, op, threshold, form)
+
+    @property
+    def features(self) -> tuple[int, ...]:
+        """The features the condition reads."""
+        return (self.feature,) if self.form is None else (self.form.i, self.form.j)
+
+    def value(self, x: np.ndarray) -> Any:
+        """The compared value on widened features (one row or a batch): the feature's column,
+        or the form computed by the floating-point rule."""
+        if self.form is None:
+            return x[..., self.feature]
+        return self.form.value(x)
+
+    def holds(self, x: np.ndarray) -> Any:
+        """Where the condition succeeds on widened features (one row or a batch)."""
+        v = self.value(x)
+        return v <= self.threshold if self.op == "<=" else v > self.threshold
+
+
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True)
@@ -222,6 +269,9 @@ class BehaviorTree:
 
     def label(self, node: Node, precision: int = 4) -> str:
         """A readable label: ``pole_angle <= 0.05``, ``push_right``, ``Sequence``."""
+        if isinstance(node, Condition) and node.form is not None:
+            text = node.form.text(self.feature_names)
+            return f"{text} {node.op} {_fmt(node.threshold, precision)}"
         if isinstance(node, Condition):
             name = self.feature_names[node.feature]
             labels = dict(self.value_labels).get(node.feature)
@@ -232,6 +282,11 @@ class BehaviorTree:
             return self.action_names[node.action]
         return type(node).__name__
 
+    @property
+    def relational_count(self) -> int:
+        """How many condition nodes are relational (test a linear form of two features)."""
+        return relational_tests(self.root)
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON document of ``data/trees/`` (see :func:`from_dict`)."""
         extra = ({"value_labels": {self.feature_names[f]: list(v) for f, v in self.value_labels}}
@@ -240,11 +295,7 @@ class BehaviorTree:
             "format": "ibt-behavior-tree/1",
             "feature_names": list(self.feature_names),
             "action_names": list(self.action_names),
-            "tick_rule": (
-                "condition succeeds iff float64(float32(obs[feature])) op threshold; an action "
-                "succeeds and is the decision; selector/fallback succeed at the first success; "
-                "sequence fails at the first failure; inverter flips"
-            ),
+            "tick_rule": TICK_RULE + (RELATIONAL_TICK_RULE if self.relational_count else ""),
             **extra,
             **({"commands": self.commands.to_dict()} if self.commands is not None else {}),
             "root": node_to_dict(self.root),
@@ -309,9 +360,9 @@ class BehaviorTree:
         """
         check_size(self.root)
         for node in self.nodes():
-            if isinstance(node, Condition) and not node.feature < len(self.feature_names):
-                raise ValueError(f"condition on feature {node.feature}, but the tree names "
-                                 f"{len(self.feature_names)} features")
+            if isinstance(node, Condition) and not max(node.features) < len(self.feature_names):
+                raise ValueError(f"condition on feature {max(node.features)}, but the tree "
+                                 f"names {len(self.feature_names)} features")
             if isinstance(node, Action) and not node.action < len(self.action_names):
                 raise ValueError(f"action {node.action}, but the tree names "
                                  f"{len(self.action_names)} actions")
@@ -333,6 +384,13 @@ class BehaviorTree:
 
 
 FORMAT = "ibt-behavior-tree/1"
+TICK_RULE = ("condition succeeds iff float64(float32(obs[feature])) op threshold; an action "
+             "succeeds and is the decision; selector/fallback succeed at the first success; "
+             "sequence fails at the first failure; inverter flips")
+# appended only for a BT with relational conditions (axis-aligned documents stay as they were)
+RELATIONAL_TICK_RULE = ("; a condition with a form {features: [i, j], weights: [w1, w2]} "
+                        "succeeds iff (w1 * x[i]) + (w2 * x[j]) op threshold, computed in "
+                        "float64 left to right with x = float64(float32(obs))")
 DOCUMENT_KEYS = frozenset({"format", "feature_names", "action_names", "tick_rule",
                            "value_labels", "commands", "root"})
 
@@ -366,6 +424,12 @@ def _fmt(value: float, precision: int) -> str:
     return text
 
 
+def relational_tests(root: Node) -> int:
+    """How many condition nodes under ``root`` are relational (a relational test is one
+    condition node, like any other)."""
+    return sum(1 for node in iterate(root) if isinstance(node, Condition) and node.form is not None)
+
+
 def iterate(node: Node) -> Iterator[Node]:
     """Depth-first, parent before children."""
     yield node
@@ -375,6 +439,9 @@ def iterate(node: Node) -> Iterator[Node]:
 
 # ----------------------------------------------------------------------------------- JSON
 def node_to_dict(node: Node) -> dict[str, Any]:
+    if isinstance(node, Condition) and node.form is not None:
+        return {"type": "condition", "form": node.form.to_json(), "op": node.op,
+                "threshold": float(node.threshold)}
     if isinstance(node, Condition):
         return {"type": "condition", "feature": node.feature, "op": node.op,
                 "threshold": float(node.threshold)}
@@ -386,6 +453,7 @@ def node_to_dict(node: Node) -> dict[str, Any]:
 _NODE_KEYS = {"condition": {"type", "feature", "op", "threshold"}, "action": {"type", "action"},
               **{kind: {"type", "children"}
                  for kind in ("selector", "fallback", "sequence", "inverter")}}
+_RELATIONAL_KEYS = {"type", "form", "op", "threshold"}
 _COMPOSITES: dict[str, type[Selector | Fallback | Sequence]] = {
     "selector": Selector, "fallback": Fallback, "sequence": Sequence}
 
@@ -421,12 +489,20 @@ def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
         raise ValueError(f"{where}: unknown node type {kind!r}; expected one of "
                          f"{', '.join(NODE_TYPES)}")
     keys = _NODE_KEYS[kind]
+    if kind == "condition" and "form" in doc:
+        if "feature" in doc:
+            raise ValueError(f"{where}: a condition has either 'feature' (a test of one feature)"
+                             " or 'form' (a relational test), not both")
+        keys = _RELATIONAL_KEYS
     if set(doc) != keys:
         problem = (f"lacks {sorted(keys - set(doc))[0]!r}" if keys - set(doc)
                    else f"has the unknown key {sorted(set(doc) - keys)[0]!r}")
         raise ValueError(f"{where}: a {kind} node {problem}; its keys are "
                          f"{', '.join(sorted(keys))}")
     try:
+        if kind == "condition" and "form" in doc:
+            return Condition.relational(LinearForm.from_json(doc["form"]), doc["op"],
+                                        doc["threshold"])
         if kind == "condition":
             return Condition(doc["feature"], doc["op"], doc["threshold"])
         if kind == "action":

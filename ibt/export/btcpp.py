@@ -44,6 +44,7 @@ from collections.abc import Sequence as Seq
 
 import numpy as np
 
+from ibt.bt.linear import LinearForm
 from ibt.bt.model import (
     Action,
     BehaviorTree,
@@ -77,6 +78,8 @@ BUILTIN_IDS = frozenset("""
     Action Condition Control Decorator BehaviorTree TreeNodesModel root
     """.split()) | {CONDITION_ID}
 _CODE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>)\s*(\S+)\s*$")
+_KEY = r"([A-Za-z_][A-Za-z0-9_]*)"
+_FORM_CODE = re.compile(rf"^\s*(\S+)\s*\*\s*{_KEY}\s*\+\s*(\S+)\s*\*\s*{_KEY}\s*(<=|>)\s*(\S+)\s*$")
 _XML_DECLARATION = '<?xml version="1.0" encoding="UTF-8"?>\n'
 
 
@@ -180,13 +183,25 @@ def command_code(bt: BehaviorTree, action: int, keys: Seq[str]) -> str:
 
 
 def condition_code(node: Condition, keys: Seq[str]) -> str:
-    """The ``ScriptCondition`` code of a condition: ``velocity > 0.0023324477951973677``."""
+    """The ``ScriptCondition`` code of a condition: ``velocity > 0.0023324477951973677``; a
+    relational one is ``1.0 * x + -1.0 * vx <= 0.5`` (weights and threshold by ``repr``: the
+    engine computes ``(w1 * x) + (w2 * vx)`` in double, the floating-point rule of
+    :mod:`ibt.bt.linear`, so it decides exactly as ``ibt``)."""
+    if node.form is not None:
+        for weight in (node.form.w1, node.form.w2):
+            if abs(weight) < sys.float_info.min:
+                raise ValueError(f"weight {weight!r} of {node.form} is subnormal, which "
+                                 "BehaviorTree.CPP's number parser rejects; use a larger one")
+        return f"{node.form.script(keys)} {node.op} {threshold_text(node.threshold)}"
     return f"{keys[node.feature]} {node.op} {threshold_text(node.threshold)}"
 
 
 def _element(node: Node, bt: BehaviorTree, ids: list[str], keys: list[str],
              flavour: str) -> ET.Element:
     if isinstance(node, Condition):
+        if node.form is not None and flavour != "portable":
+            raise ValueError("a relational condition has no CheckFeature form; export this BT "
+                             "with flavour='portable' (a ScriptCondition)")
         if flavour == "portable":
             return ET.Element(SCRIPT_CONDITION, {"code": condition_code(node, keys),
                                                  "name": xml_safe(bt.label(node))})
@@ -256,7 +271,25 @@ def to_btcpp_xml(bt: BehaviorTree, tree_id: str = "MainTree", flavour: str = "po
 
 
 # ------------------------------------------------------------------------------- reading
+def _form_condition(match: re.Match[str], code: str, feature_of: dict[str, int]) -> Condition:
+    """``W1 * KEY1 + W2 * KEY2 OP NUMBER`` back to a relational condition."""
+    w1, k1, w2, k2, op, number = match.groups()
+    for key in (k1, k2):
+        if key not in feature_of:
+            raise ValueError(f"a ScriptCondition reads the blackboard key {key!r}, which is none "
+                             f"of this task's features (keys: {', '.join(feature_of)}); is the "
+                             "XML from another task?")
+    try:
+        form = LinearForm(feature_of[k1], feature_of[k2], float(w1), float(w2))
+        return Condition.relational(form, op, float(number))
+    except ValueError as err:
+        raise ValueError(f"ScriptCondition {code!r}: {err}") from None
+
+
 def _script_condition(code: str, feature_of: dict[str, int]) -> Condition:
+    form = _FORM_CODE.match(code)
+    if form:
+        return _form_condition(form, code, feature_of)
     match = _CODE.match(code)
     if not match:
         raise ValueError(f"unsupported ScriptCondition code {code!r}; expected "

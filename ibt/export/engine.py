@@ -216,6 +216,9 @@ def leaf_regions(bt: BehaviorTree) -> list[Region]:
     Evaluates the BT on a box and splits the box at the first condition whose outcome the box
     does not fix, until every box is decided (like ``leaf_paths`` of a CART tree).
     """
+    if bt.relational_count:
+        raise ValueError("leaf_regions takes axis-aligned BTs; the regions of a BT with "
+                         "relational conditions are polytopes: ibt.bt.polytope.bt_regions")
     n = len(bt.feature_names)
     stack = [(np.full(n, -np.inf), np.full(n, np.inf))]
     regions: list[Region] = []
@@ -284,6 +287,11 @@ def agreement_states(bt: BehaviorTree, task: Task, n_random: int = 10_000,
     every threshold's neighbours once more in a random state (conditions no region bounds);
     ``n_random`` random states from the task's box; the whole state space of a discrete task.
     """
+    if bt.relational_count:  # polytope regions (issue 26): ibt.bt.polytope.agreement_rows
+        from ibt.bt.polytope import agreement_rows
+
+        random = task.sample_features(n_random, np.random.default_rng(seed))
+        return agreement_rows(bt, task.low, task.high, random, seed=seed)
     low, high = np.asarray(task.low, dtype=np.float64), np.asarray(task.high, dtype=np.float64)
     integer = task.integer_features or task.discrete_state
     rng = np.random.default_rng(seed)

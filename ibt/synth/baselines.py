@@ -220,8 +220,12 @@ def bt_espresso(tree: DecisionTreeClassifier, task: Task, *, check: bool = True)
     """BT-Espresso (French et al. 2019): per-node symbols, Espresso, one guard per action.
 
     Raises :class:`ibt.synth.imitation.NotEquivalentError` when ``check`` and the BT disagrees with
-    ``tree`` on some state.
+    ``tree`` on some state. A relational tree goes through :func:`ibt.synth.relational.synthesise`.
     """
+    from ibt.synth import relational
+
+    if relational.is_relational(tree):
+        return relational.synthesise(bt_espresso, tree, task, check=check)
     rule_sets = [RuleSet(action, tuple(terms))
                  for action, terms in _symbolic_rule_sets(tree, bt_espresso_symbols(tree))]
     guards = [_guard((), list(rs.terms), rs.action) for rs in rule_sets]
@@ -250,8 +254,12 @@ def re_bt_espresso(tree: DecisionTreeClassifier, task: Task, *, check: bool = Tr
     """RE:BT-Espresso (Wathieu et al. 2022): shared symbols, Espresso, containment, factoring.
 
     Raises :class:`ibt.synth.imitation.NotEquivalentError` when ``check`` and the BT disagrees with
-    ``tree`` on some state.
+    ``tree`` on some state. A relational tree goes through :func:`ibt.synth.relational.synthesise`.
     """
+    from ibt.synth import relational
+
+    if relational.is_relational(tree):
+        return relational.synthesise(re_bt_espresso, tree, task, check=check)
     rule_sets = [RuleSet(action, tuple(dict.fromkeys(merge_thresholds(t) for t in terms)))
                  for action, terms in _symbolic_rule_sets(tree, re_bt_espresso_symbols(tree))]
     guards = [_guard(*factor_common(list(rs.terms)), rs.action) for rs in rule_sets]

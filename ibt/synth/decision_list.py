@@ -590,8 +590,14 @@ def decision_list_bt(tree: DecisionTreeClassifier, task: Task, *, time_limit: fl
     (``result.search["work"]`` says how many it used); ``time_limit`` seconds is a safety net
     that stops the search early with a warning. Raises
     :class:`ibt.synth.imitation.NotEquivalentError` when ``check`` and the BT disagrees with
-    ``tree`` (it should not: every candidate is proven exact on the leaf boxes first).
+    ``tree`` (it should not: every candidate is proven exact on the leaf boxes first). A
+    relational tree goes through :func:`ibt.synth.relational.synthesise`.
     """
+    from ibt.synth import relational
+
+    if relational.is_relational(tree):
+        return relational.synthesise(decision_list_bt, tree, task, time_limit=time_limit,
+                                     max_work=max_work, check=check, rng_seed=rng_seed)
     view = _view(tree)
     tested = [lit.feature for term, _ in _paths(view) for lit in term]
     if tested and max(tested) >= task.n_features:

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 from sklearn.tree import DecisionTreeClassifier
 
+from ibt.bt.linear import FeatureMap
 from ibt.bt.model import Action, BehaviorTree, Condition, Fallback, Node, Selector, Sequence
 from ibt.evaluate.policies import CompiledTree
 from ibt.synth.logic import Variables, minimise
@@ -63,6 +64,8 @@ class Synthesis:
     default_strategy: str | None
     rule_sets: tuple[RuleSet, ...]
     search: dict[str, Any] = field(default_factory=dict)
+    # a relational tree's feature map: its rule sets' literals read augmented columns
+    feature_map: FeatureMap | None = None
 
 
 def minimised_rule_sets(tree: DecisionTreeClassifier, *, dont_cares: bool = False
@@ -107,7 +110,13 @@ def _most_frequent(tree: DecisionTreeClassifier) -> int:
 def imitation_bt(tree: DecisionTreeClassifier, task: Task, *,
                  default_strategy: str = "max_complexity", dont_cares: bool = False,
                  check: bool = True, rng_seed: int = 0) -> Synthesis:
-    """Synthesise the Imitation-BT of ``tree`` (verified exact unless ``check=False``)."""
+    """Synthesise the Imitation-BT of ``tree`` (verified exact unless ``check=False``); a
+    relational tree goes through :func:`ibt.synth.relational.synthesise`."""
+    from ibt.synth import relational
+
+    if relational.is_relational(tree):
+        return relational.synthesise(imitation_bt, tree, task, default_strategy=default_strategy,
+                                     dont_cares=dont_cares, check=check, rng_seed=rng_seed)
     if default_strategy not in DEFAULT_STRATEGIES:
         raise ValueError(f"unknown default strategy {default_strategy!r}; expected one of "
                          f"{', '.join(DEFAULT_STRATEGIES)}")
@@ -130,10 +139,12 @@ def imitation_bt(tree: DecisionTreeClassifier, task: Task, *,
 def rules_frame(result: Synthesis) -> pd.DataFrame:
     """The minimised rule sets as a table: action, k, rule text, and which is the default."""
     bt = result.bt
+    names = (bt.feature_names if result.feature_map is None
+             else result.feature_map.names(bt.feature_names))  # augmented columns' names
     rows = []
     for rs in result.rule_sets:
         text = " OR ".join("(" + " and ".join(
-            f"{bt.feature_names[lit.feature]} {lit.op} {lit.threshold:.4g}" for lit in term)
+            f"{names[lit.feature]} {lit.op} {lit.threshold:.4g}" for lit in term)
             + ")" if term else "(always)" for term in rs.terms)
         rows.append({"action": bt.action_names[rs.action], "k": rs.k, "terms": len(rs.terms),
                      "default": rs.action == result.default_action, "rule": text})
@@ -173,8 +184,13 @@ def verify(bt: BehaviorTree, tree: DecisionTreeClassifier, task: Task, *, seed: 
 
     The states are finite: NaN and infinity are refused by every executor, the tree's and the
     BT's alike (:mod:`ibt.bt.executors`), so finite states are the whole domain on which the two
-    must agree. Returns the number of states checked.
+    must agree. Returns the number of states checked. A relational tree is checked in
+    observed space by :func:`ibt.synth.relational.verify_relational`.
     """
+    from ibt.synth import relational
+
+    if relational.is_relational(tree):
+        return relational.verify_relational(bt, tree, task, seed=seed, n_random=n_random)
     states = verification_states(tree, task, n_random=n_random, seed=seed)
     expected = CompiledTree(tree).predict(states)
     got = bt.decide(states)

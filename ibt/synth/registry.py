@@ -36,7 +36,15 @@ class Synthesiser:
         return getattr(importlib.import_module(module), attribute)
 
     def __call__(self, tree: Any, task: Any, **options: Any) -> Any:
-        return self.resolve(self.function)(tree, task, **options)
+        """The synthesis of ``tree``; a relational tree (issue 26) is synthesised on its
+        augmented space and verified in observed space (:func:`ibt.synth.relational.synthesise`),
+        so a user's synthesiser takes relational trees too."""
+        function = self.resolve(self.function)
+        if getattr(tree, "feature_map_", None) is not None:
+            from ibt.synth import relational
+
+            return relational.synthesise(function, tree, task, **options)
+        return function(tree, task, **options)
 
     def version_number(self) -> Any:
         return None if self.version is None else self.resolve(self.version)
