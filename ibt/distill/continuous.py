@@ -162,3 +162,40 @@ def distill_box(task: Task, expert: Expert, config: BoxDistillConfig, seed: int 
                                  -record.iterations[k]["nodes"], -k))
     record.wall_seconds = time.perf_counter() - start
     return record
+
+
+def regressor_doc(tree: DecisionTreeRegressor) -> dict[str, Any]:
+    """A fitted regression tree as plain JSON data (floats by ``repr``: exact round trips),
+    what :func:`regressor_from_doc` reads back into a tree that predicts identically."""
+    t = tree.tree_
+    state = t.__getstate__()
+    nodes = state["nodes"]
+    return {"n_features": int(tree.n_features_in_), "n_outputs": int(t.n_outputs),
+            "max_depth": int(state["max_depth"]), "max_leaf_nodes": tree.max_leaf_nodes,
+            "tree_max_depth": tree.max_depth, "random_state": tree.random_state,
+            "fields": {name: nodes[name].tolist() for name in nodes.dtype.names},
+            "values": t.value[:, :, 0].tolist()}
+
+
+def regressor_from_doc(doc: dict[str, Any]) -> DecisionTreeRegressor:
+    """The regression tree of :func:`regressor_doc`."""
+    from sklearn.tree._tree import Tree
+
+    n_outputs = int(doc["n_outputs"])
+    template = Tree(int(doc["n_features"]), np.ones(n_outputs, dtype=np.intp), n_outputs)
+    dtype = template.__getstate__()["nodes"].dtype
+    fields = doc["fields"]
+    nodes = np.zeros(len(fields["left_child"]), dtype=dtype)
+    for name in dtype.names:
+        nodes[name] = fields[name]
+    values = np.asarray(doc["values"], dtype=np.float64).reshape(len(nodes), n_outputs, 1)
+    template.__setstate__({"max_depth": int(doc["max_depth"]), "node_count": len(nodes),
+                           "nodes": nodes, "values": values})
+    tree = DecisionTreeRegressor(max_leaf_nodes=doc["max_leaf_nodes"],
+                                 max_depth=doc["tree_max_depth"],
+                                 random_state=doc["random_state"])
+    tree.n_features_in_ = int(doc["n_features"])
+    tree.n_outputs_ = n_outputs
+    tree.max_features_ = int(doc["n_features"])
+    tree.tree_ = template
+    return tree

@@ -668,3 +668,64 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
     if path is not None:
         save_figure(fig, path)
     return fig
+
+
+def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.DataFrame,
+                     path: str | Path | None = None) -> plt.Figure:
+    """Return against BT nodes for the continuous-action tasks (issue 25, notebook 10).
+
+    ``points``: one row per run (task, refined, leaf_limit, bt_nodes, mean_return,
+    expert_return, algo); a line per kind (distilled, refined) through its leaf limits, mean
+    over seeds with the range over seeds as error bars, faint dots for single seeds;
+    ``anchors``: published or run-here trees (task, source, tree_nodes, mean_return);
+    ``targets``: the issue's bars (task, min_return).
+    """
+    tasks = list(dict.fromkeys(points["task"]))
+    fig, axes = plt.subplots(1, len(tasks), figsize=(FIG_WIDTH, 3.2), squeeze=False)
+    handles: dict[str, Any] = {}
+    kinds = {False: ("distilled (regression tree, named commands)", "#56B4E9", "o-"),
+             True: ("refined by return (Imitation-BT+)", "#E69F00", "D-")}
+    sources = list(dict.fromkeys(anchors["source"])) if len(anchors) else []
+    for ax, task in zip(axes.flat, tasks, strict=True):
+        rows = points[points["task"] == task]
+        for refined, (label, color, fmt) in kinds.items():
+            runs = rows[rows["refined"] == refined]
+            if runs.empty:
+                continue
+            ax.scatter(runs["bt_nodes"], runs["mean_return"], s=9, alpha=0.35, color=color,
+                       lw=0)
+            line = runs.groupby("leaf_limit").agg(x=("bt_nodes", "mean"),
+                                                  y=("mean_return", "mean"),
+                                                  lo=("mean_return", "min"),
+                                                  hi=("mean_return", "max")).sort_values("x")
+            handle = ax.errorbar(line["x"], line["y"], yerr=[line["y"] - line["lo"],
+                                                             line["hi"] - line["y"]],
+                                 fmt=fmt, ms=4, capsize=2, lw=1.2, color=color, label=label)
+            handles.setdefault(label, handle)
+        for anchor in anchors[anchors["task"] == task].itertuples():
+            marker = ("*", "X", "P", "s")[sources.index(anchor.source) % 4]
+            handle = ax.scatter([anchor.tree_nodes], [anchor.mean_return], marker=marker,
+                                s=90 if marker == "*" else 50, color="black", zorder=5,
+                                label=anchor.source)
+            handles.setdefault(str(anchor.source), handle)
+        ax.axhline(float(rows["expert_return"].iloc[0]), color="black", lw=0.8, ls=":")
+        bar = targets.loc[targets["task"] == task, "min_return"]
+        if len(bar):
+            ax.axhline(float(bar.iloc[0]), color=GREY, lw=0.8, ls="--")
+        ax.set_xscale("log")
+        _plain_log_ticks(ax)
+        ax.set_title(f"{task}, {str(rows['algo'].iloc[0]).upper()} expert")
+        ax.set_xlabel("BT nodes (log)")
+    axes[0, 0].set_ylabel("mean return")
+    fig.legend(list(handles.values()), list(handles.keys()), loc="upper center",
+               ncol=min(3, len(handles)), bbox_to_anchor=(0.5, 1.08), frameon=False)
+    caption = ("Mean over seeds at each leaf limit, error bars the range (min to max) over "
+               "seeds; faint dots are single seeds; 100 final episodes each, every BT rolled "
+               "out from its JSON document. Black marks: trees published or run here (their "
+               "tree nodes, 2 x leaves - 1, not BT nodes). Dotted: the expert; dashed: the "
+               "issue's target.")
+    fig.tight_layout(rect=(0, 0.0, 1, 0.97))
+    fig.text(0.5, 0.0, _wrap(caption, 110), ha="center", va="top", fontsize=9)
+    if path is not None:
+        save_figure(fig, path)
+    return fig

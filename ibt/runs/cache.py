@@ -72,6 +72,11 @@ CODE_VERSIONS: dict[str, int] = {
     "evolve": 1,  # ibt.runs.search.evolve_cached: ibt.refine.structure.evolve
     "protocol": 1,  # ibt.runs.search.protocol_evaluation: a BT on the anchors' protocol
     "speed": 1,  # ibt.runs.grid.speed_benchmark: executors' decisions/s, per machine
+    # continuous actions (issue 25): ibt.runs.continuous
+    "box-distill": 1,  # box_distill_cached: ibt.distill.continuous.distill_box
+    "box-commands": 1,  # commands_cached: ibt.synth.commands.choose_commands
+    "box-refine": 1,  # refine_cached: ibt.refine.commands.refine_commands
+    "box-eval": 1,  # evaluate_cached: verified BTs of a command tree, final return from JSON
 }
 READS_ENV = "IBT_CACHE_READS"
 

@@ -55,6 +55,14 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                *_ROLLOUT),
     "protocol": ("runs/search.py", "bt/model.py", "bt/executors.py", *_ROLLOUT),
     "speed": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
+    "box-distill": ("distill/continuous.py", "runs/continuous.py", "experts/expert.py",
+                    *_ROLLOUT),
+    "box-commands": ("synth/commands.py", "distill/continuous.py", "runs/continuous.py",
+                     "experts/expert.py", "experts/training.py", *_ROLLOUT),
+    "box-refine": ("refine/commands.py", "refine/by_return.py", "runs/continuous.py",
+                   "runs/front.py", *_TREES, *_ROLLOUT),
+    "box-eval": ("runs/continuous.py", "synth/commands.py", "refine/commands.py", *_TREES,
+                 *_SYNTH, *_ROLLOUT),
 }
 
 

@@ -286,6 +286,11 @@ PENDULUM = Task(
         ("sac", hp(2e4, source=_ZOO_SAC, net_arch=(256, 256), learning_rate=1e-3)),
     ),
     bar=QualityBar(min_return=-334.4),
+    # refinement of command trees by return (ibt.refine.commands): CMA-ES stages only; set
+    # before any refined result, from the speed of a LunarLanderContinuous trial (about 15
+    # episodes per CPU-second) and this session's CPU
+    refine=RefineConfig(stages=("cma",), episodes=2_000, cma_generations=25, cma_episodes=8,
+                        sweep_episodes=20),
 )
 
 MOUNTAINCAR_CONTINUOUS = Task(
@@ -302,6 +307,8 @@ MOUNTAINCAR_CONTINUOUS = Task(
                    use_sde=True)),
     ),
     bar=QualityBar(min_return=92.4),
+    refine=RefineConfig(stages=("cma",), episodes=1_000, cma_generations=15, cma_episodes=8,
+                        sweep_episodes=20),
 )
 
 LUNARLANDER_CONTINUOUS = Task(
@@ -319,6 +326,10 @@ LUNARLANDER_CONTINUOUS = Task(
                    gamma=0.999, n_epochs=4, ent_coef=0.01)),
     ),
     bar=QualityBar(min_return=206.7),
+    # two CMA-ES runs (the second restarts from the first's result), about 12,000 episodes:
+    # 10-15 CPU-minutes here
+    refine=RefineConfig(stages=("cma", "cma"), episodes=12_000, cma_generations=28,
+                        cma_episodes=16),
 )
 
 CONTINUOUS: tuple[Task, ...] = (PENDULUM, MOUNTAINCAR_CONTINUOUS, LUNARLANDER_CONTINUOUS)

@@ -1,0 +1,277 @@
+"""Refinement by return of command trees: Imitation-BT+ for continuous actions (issue 25).
+
+A command tree (:class:`ibt.synth.commands.CommandTree`) is an axis-aligned tree whose leaves
+name one of ``k`` commands, each a vector inside the task's Box. Its return is raised by
+CMA-ES (the ``cma`` package, as in :mod:`ibt.refine.by_return`) on the thresholds and the
+command values *jointly*: each threshold moves in units of the spread of its feature over the
+states the tree visits, each command value in units of a quarter of its dimension's Box span,
+and a value is clipped to the Box. The tree's shape and the leaves' command ids never change,
+so the BT synthesised from a refined tree has the same readable set of named commands.
+
+The seed discipline, the budget in episodes and the held-out choice are those of
+:mod:`ibt.refine.by_return`, reused rather than copied: refinement episodes come from its
+``_Episodes`` (seeds from :data:`ibt.evaluate.rollouts.REFINE_SEED_BASE`, disjoint from the
+distillation's training and selection episodes and from the final evaluation; every member of a
+generation on the same fresh episodes, each generation on new ones); the stages' results, the
+source included, are compared on held-out selection episodes
+(:data:`ibt.evaluate.rollouts.REFINE_SELECTION_OFFSET`) and the best is kept. Command values are
+rounded (to :data:`ibt.synth.commands.DECIMALS` decimals) before any comparison, so the tree chosen
+is exactly the one the BT writes. Deterministic given the seed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from ibt.evaluate.rollouts import REFINE_SELECTION_OFFSET, rollout, selection_seeds
+from ibt.refine.by_return import _Episodes
+from ibt.refine.tree_arrays import TreeArrays
+from ibt.tasks.settings import RefineConfig
+from ibt.tasks.task import Task
+
+VALUE_SCALE = 0.25  #: a command value's CMA-ES unit, as a share of its dimension's Box span
+
+
+@dataclass(frozen=True)
+class CommandArrays:
+    """A command tree as arrays: ``structure.action`` is each leaf's command id, ``values`` the
+    command table ``(k, dims)``."""
+
+    structure: TreeArrays
+    values: np.ndarray
+
+    @classmethod
+    def from_command_tree(cls, tree: Any) -> CommandArrays:
+        """The arrays of a :class:`ibt.synth.commands.CommandTree` (its classifier's leaves
+        hold command ids; the conversion back is :func:`ibt.runs.continuous.command_tree_of`)."""
+        return cls(TreeArrays.from_sklearn(tree.tree), tree.commands.array().astype(np.float64))
+
+    def with_parameters(self, threshold: np.ndarray, values: np.ndarray) -> CommandArrays:
+        return CommandArrays(self.structure.with_parameters(threshold=threshold),
+                             np.asarray(values, dtype=np.float64))
+
+    def simplified(self) -> CommandArrays:
+        """Dead splits removed (thresholds moved outside their ancestors' interval)."""
+        return CommandArrays(self.structure.simplified(), self.values)
+
+    def actions(self, features: np.ndarray) -> np.ndarray:
+        """The command vectors ``(n, dims)`` on feature rows."""
+        return self.values[self.structure.predict(features)].astype(np.float32)
+
+    @property
+    def n_leaves(self) -> int:
+        return self.structure.n_leaves
+
+    @property
+    def n_commands(self) -> int:
+        return len(self.values)
+
+    def to_doc(self) -> dict[str, Any]:
+        """Plain JSON data (floats written by ``repr``: exact round trips)."""
+        s = self.structure
+        return {"feature": s.feature.tolist(), "threshold": s.threshold.tolist(),
+                "left": s.left.tolist(), "right": s.right.tolist(),
+                "command": s.action.tolist(), "samples": s.samples.tolist(),
+                "n_features": s.n_features, "values": self.values.tolist()}
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> CommandArrays:
+        values = np.asarray(doc["values"], dtype=np.float64).reshape(len(doc["values"]), -1)
+        structure = TreeArrays(
+            np.asarray(doc["feature"], dtype=np.int64),
+            np.asarray(doc["threshold"], dtype=np.float64),
+            np.asarray(doc["left"], dtype=np.int64), np.asarray(doc["right"], dtype=np.int64),
+            np.asarray(doc["command"], dtype=np.int64),
+            np.asarray(doc["samples"], dtype=np.float64), int(doc["n_features"]), len(values))
+        return cls(structure, values)
+
+
+class CommandPopulation:
+    """Threshold and command-table sets of one command tree, decided in one batch (the
+    :class:`ibt.refine.by_return.Batch` protocol): row ``i`` is decided by ``members[i]``."""
+
+    def __init__(self, arrays: CommandArrays, thresholds: np.ndarray, values: np.ndarray):
+        self.structure = arrays.structure
+        self.thresholds = np.atleast_2d(np.asarray(thresholds, dtype=np.float64))
+        self.values = np.asarray(values, dtype=np.float64).reshape(
+            len(self.thresholds), *arrays.values.shape)
+        self.feature = np.maximum(self.structure.feature, 0)
+        self.depth = self.structure.depth()
+
+    def __len__(self) -> int:
+        return len(self.thresholds)
+
+    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+        x = np.asarray(features, dtype=np.float32).astype(np.float64)
+        rows = np.arange(len(x))
+        node = np.zeros(len(x), dtype=np.int64)
+        s = self.structure
+        for _ in range(self.depth):
+            go_left = x[rows, self.feature[node]] <= self.thresholds[members, node]
+            node = np.where(s.is_leaf[node], node, np.where(go_left, s.left[node], s.right[node]))
+        return self.values[members, s.action[node]].astype(np.float32)
+
+
+def _spread(task: Task, arrays: CommandArrays, episodes: _Episodes) -> np.ndarray:
+    """Each feature's standard deviation over the states the tree visits (the thresholds'
+    CMA-ES unit), as :func:`ibt.refine.by_return.feature_spread` measures it for a tree of
+    discrete actions."""
+    states: list[np.ndarray] = []
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        x = task.features(obs)
+        states.append(x)
+        return arrays.actions(x)
+
+    rollout(task, act, episodes.fresh(8), n_envs=8)
+    x = np.concatenate(states).astype(np.float64)
+    box = np.asarray(task.high, dtype=np.float64) - np.asarray(task.low, dtype=np.float64)
+    floor = np.where(np.isfinite(box) & (box > 0), 1e-3 * box, 1e-3)
+    return np.maximum(x.std(axis=0), floor)
+
+
+def _rounded(values: np.ndarray, task: Task, decimals: int) -> np.ndarray:
+    """Command values rounded to ``decimals`` and clipped to the Box (what a BT writes)."""
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    return np.clip(np.round(values, decimals), low, high) + 0.0
+
+
+def _cma_stage(arrays: CommandArrays, task: Task, spread: np.ndarray, config: RefineConfig,
+               episodes: _Episodes, rng: np.random.Generator, decimals: int
+               ) -> tuple[CommandArrays, dict]:
+    """One CMA-ES run on thresholds and command values; the incumbent, CMA-ES's mean and its
+    best sample are then compared on the same fresh episodes and the best kept."""
+    import cma
+
+    splits = np.flatnonzero(~arrays.structure.is_leaf)
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    base_t, base_v = arrays.structure.threshold.copy(), arrays.values.copy()
+    scale = np.concatenate([spread[arrays.structure.feature[splits]],
+                            np.tile(VALUE_SCALE * (high - low), len(base_v))])
+    n_params = len(scale)
+    options = {"seed": np.nan, "randn": lambda lam, n: rng.standard_normal((lam, n)),
+               "verbose": -9, "verb_log": 0, "verb_disp": 0, "tolflatfitness": 10**9,
+               "tolfun": 0, "tolx": 0, "tolstagnation": 10**9}
+    if config.cma_popsize:
+        options["popsize"] = config.cma_popsize
+    es = cma.CMAEvolutionStrategy(np.zeros(n_params), config.cma_sigma, options)
+
+    def members(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z = np.atleast_2d(z) * scale
+        t = np.repeat(base_t[None, :], len(z), axis=0)
+        t[:, splits] = base_t[splits] + z[:, :len(splits)]
+        v = np.clip(base_v[None] + z[:, len(splits):].reshape(len(z), *base_v.shape), low, high)
+        return t, _rounded(v, task, decimals)
+
+    generations = 0
+    history: list[tuple[float, float]] = []
+    while generations < config.cma_generations:
+        if episodes.left < es.popsize * config.cma_episodes:
+            break
+        z = np.asarray(es.ask())
+        population = CommandPopulation(arrays, *members(z))
+        means = episodes.score(population, episodes.fresh(config.cma_episodes)).mean(axis=1)
+        es.tell(list(z), list(-means))
+        history.append((round(float(means.mean()), 2), round(float(means.max()), 2)))
+        generations += 1
+        episodes.bar.set_postfix(generation=generations, mean=history[-1][0],
+                                 best=history[-1][1])
+    if generations == 0:
+        return arrays, {"generations": 0}
+    contenders = np.vstack([np.zeros(n_params), es.mean, es.best.x])
+    t, v = members(contenders)
+    k = config.sweep_episodes
+    if episodes.left >= 3 * k:
+        compare = episodes.score(CommandPopulation(arrays, t, v), episodes.fresh(k)).mean(axis=1)
+        pick = int(np.argmax(compare))
+    else:
+        compare, pick = np.full(3, np.nan), 1
+    return arrays.with_parameters(t[pick], v[pick]), {
+        "generations": generations, "history": history,
+        "picked": ("incumbent", "mean", "best sample")[pick],
+        "compare_means": [round(float(m), 3) for m in compare]}
+
+
+@dataclass
+class CommandRefinement:
+    """A command-tree refinement's record: each stage's result and the chosen tree."""
+
+    task: str
+    seed: int
+    config: dict[str, Any]
+    stages: list[dict[str, Any]] = field(default_factory=list)
+    candidates: list[CommandArrays] = field(default_factory=list)  # [source, after each stage]
+    best_index: int = 0
+    selection_means: list[float] = field(default_factory=list)
+    episodes: int = 0
+    steps: int = 0
+    wall_seconds: float = 0.0
+    cpu_seconds: float = 0.0
+
+    @property
+    def best(self) -> CommandArrays:
+        return self.candidates[self.best_index]
+
+    def to_doc(self) -> dict[str, Any]:
+        """Plain JSON data (a ``json`` cache payload)."""
+        return {"task": self.task, "seed": self.seed, "config": self.config,
+                "stages": self.stages, "candidates": [c.to_doc() for c in self.candidates],
+                "best_index": self.best_index, "selection_means": self.selection_means,
+                "episodes": self.episodes, "steps": self.steps,
+                "wall_seconds": self.wall_seconds, "cpu_seconds": self.cpu_seconds}
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> CommandRefinement:
+        return cls(**{**doc, "candidates": [CommandArrays.from_doc(c)
+                                            for c in doc["candidates"]]})
+
+
+def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, *,
+                    decimals: int = 2, progress: bool = True) -> CommandRefinement:
+    """Refine a command tree's thresholds and command values on ``task``'s return (only the
+    ``cma`` stages of ``config`` apply: shape and command ids stay). ``tree``: a
+    :class:`CommandArrays` or a :class:`ibt.synth.commands.CommandTree`; command values are
+    rounded to ``decimals`` (:data:`ibt.synth.commands.DECIMALS`). See the module docstring."""
+    if not task.continuous:
+        raise ValueError(f"{task.name} has discrete actions: refine its tree with "
+                         "ibt.refine.by_return.refine")
+    unknown = [s for s in config.stages if s != "cma"]
+    if unknown:
+        raise ValueError(f"a command tree is refined by CMA-ES stages only, not {unknown}")
+    source = tree if isinstance(tree, CommandArrays) else CommandArrays.from_command_tree(tree)
+    source = CommandArrays(source.structure, _rounded(source.values, task, decimals)).simplified()
+    if source.structure.n_features != task.n_features:
+        raise ValueError(f"the tree reads {source.structure.n_features} features, {task.name} "
+                         f"has {task.n_features}")
+    rng = np.random.default_rng(seed)
+    record = CommandRefinement(task.name, seed, config.as_params(), candidates=[source])
+    start, cpu_start = time.perf_counter(), time.process_time()
+    bar = tqdm(total=config.episodes, desc=f"refine commands {task.name} s{seed}", unit="ep",
+               disable=not progress, leave=False)
+    episodes = _Episodes(task, seed, config, bar)
+    spread = _spread(task, source, episodes)
+    current = source
+    for name in config.stages:
+        current, info = _cma_stage(current, task, spread, config, episodes, rng, decimals)
+        current = current.simplified()
+        record.candidates.append(current)
+        record.stages.append({"stage": name, "leaves": current.n_leaves,
+                              "episodes_used": episodes.used, **info})
+        bar.set_postfix(stage=name, leaves=current.n_leaves)
+    bar.close()
+    held_out = selection_seeds(config.selection_episodes, seed, offset=REFINE_SELECTION_OFFSET)
+    scores = []
+    for arrays in record.candidates:
+        population = CommandPopulation(arrays, arrays.structure.threshold, arrays.values)
+        scores.append(float(episodes.score(population, held_out, count=False).mean()))
+    record.best_index = max(range(len(scores)), key=lambda i: (scores[i], -i))
+    record.selection_means = scores
+    record.episodes, record.steps = episodes.used, episodes.steps
+    record.wall_seconds = time.perf_counter() - start
+    record.cpu_seconds = time.process_time() - cpu_start
+    return record

@@ -1,0 +1,312 @@
+"""Continuous actions (issue 25), cached: distil into regression trees, merge leaves into named
+commands, refine the command tree by return (Imitation-BT+ for continuous actions), synthesise
+every verified BT and evaluate it rolled out from its JSON document.
+
+Each step is one cache kind of :data:`ibt.runs.cache.CODE_VERSIONS` with a plain JSON payload:
+
+* ``box-distill``: :func:`ibt.distill.continuous.distill_box` (iterations and the best
+  regression tree, :func:`ibt.distill.continuous.regressor_doc`);
+* ``box-commands``: :func:`ibt.synth.commands.choose_commands` on that tree (the fewest commands
+  within 1 % of expert minus random return of the tree's own, on held-out selection episodes);
+* ``box-refine``: :func:`ibt.refine.commands.refine_commands` of the command tree, with the
+  task's refinement budget (its catalogue entry's ``refine``);
+* ``box-eval``: every front synthesiser's BT of a command tree (each verified against it), the
+  smallest one's JSON, and its return on the final episodes, rolled out from that JSON text.
+
+The notebook (``notebooks/10_continuous.ipynb``) calls :func:`continuous_table`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from ibt.bt.model import BehaviorTree, Commands
+from ibt.distill.continuous import (
+    BoxDistillConfig,
+    distill_box,
+    regressor_doc,
+    regressor_from_doc,
+)
+from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout, selection_seeds
+from ibt.experts.expert import expert_path, load_expert
+from ibt.files import file_digest
+from ibt.profiles import Config
+from ibt.refine.commands import CommandArrays, CommandRefinement, refine_commands
+from ibt.runs.cache import load_or_compute
+from ibt.runs.front import refine_config
+from ibt.runs.grid import expert_evaluation
+from ibt.synth.commands import (
+    DECIMALS,
+    CommandBTPolicy,
+    CommandTree,
+    choose_commands,
+    command_name,
+    command_task,
+)
+from ibt.synth.registry import front_synthesisers, get_synthesiser
+from ibt.tasks.catalogue import get_task
+from ibt.tasks.task import Task
+
+COMMAND_TOLERANCE = 0.01  #: choose_commands' tolerance (share of expert minus random return)
+BOX_SELECTION_EPISODES = 20  #: held-out episodes choosing the distillation's tree and its k
+
+
+def _digest(doc: Any) -> str:
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def box_config(cfg: Config, task: Task, method: str, leaves: int | None) -> BoxDistillConfig:
+    """The task's distillation budget at a leaf limit, shrunk under the ``smoke`` profile."""
+    overrides: dict[str, Any] = {"method": method,
+                                 "selection_episodes": min(BOX_SELECTION_EPISODES,
+                                                           cfg.selection_episodes)}
+    if leaves is not None:
+        overrides["max_leaf_nodes"] = leaves
+    if cfg.profile == "smoke":
+        overrides.update(n_iterations=2, labels_per_iteration=300, eval_envs=3)
+    return BoxDistillConfig.for_task(task, **overrides)
+
+
+def box_distill_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
+                       leaves: int | None = None) -> dict[str, Any]:
+    """A continuous distillation (cached): ``iterations``, ``best_index``, ``tree`` (a
+    :func:`ibt.distill.continuous.regressor_doc`), ``wall_seconds``."""
+    spec = get_task(task)
+    config = box_config(cfg, spec, method, leaves)
+    params = {"task": spec.name, "algo": algo, "seed": seed, "config": config.as_params(),
+              "expert_sha256": file_digest(expert_path(spec, algo, cfg.experts_dir))}
+
+    def compute() -> dict[str, Any]:
+        expert = load_expert(spec, algo, expert_path(spec, algo, cfg.experts_dir))
+        run = distill_box(spec, expert, config, seed, progress=cfg.progress)
+        return {"iterations": run.iterations, "best_index": run.best_index,
+                "tree": regressor_doc(run.best_tree), "wall_seconds": run.wall_seconds}
+
+    return load_or_compute("box-distill", params, compute, cache_dir=cfg.cache_dir,
+                           codec="json", refresh=cfg.refresh)
+
+
+def command_tree_of(arrays: CommandArrays, task: Task) -> CommandTree:
+    """The :class:`ibt.synth.commands.CommandTree` of command arrays on ``task``."""
+    names = tuple(command_name(task, row) for row in arrays.values)
+    commands = Commands(task.action_names, task.action_units or ("",) * task.n_actions,
+                        tuple(tuple(float(v) for v in row) for row in arrays.values))
+    return CommandTree(arrays.structure.to_sklearn(), commands, command_task(task, names))
+
+
+def commands_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
+                    leaves: int | None = None) -> dict[str, Any]:
+    """The distilled tree's leaves merged into the fewest named commands that keep its
+    held-out return (cached): ``arrays`` (a :class:`CommandArrays` document), ``rows`` (every
+    ``k`` tried), ``scale`` (expert minus random return on those episodes)."""
+    from ibt.experts.training import BoxRandomPolicy
+
+    spec = get_task(task)
+    run = box_distill_cached(cfg, spec, algo, method, seed, leaves)
+    n = min(BOX_SELECTION_EPISODES, cfg.selection_episodes)
+    params = {"task": spec.name, "algo": algo, "seed": seed, "tree": _digest(run["tree"]),
+              "episodes": n, "tolerance": COMMAND_TOLERANCE, "decimals": DECIMALS}
+
+    def compute() -> dict[str, Any]:
+        seeds = selection_seeds(n, seed, offset=1)
+        expert = load_expert(spec, algo, expert_path(spec, algo, cfg.experts_dir))
+        scale = (rollout(spec, expert.act, seeds).mean
+                 - rollout(spec, BoxRandomPolicy(spec, seed).act, seeds).mean)
+        chosen, rows = choose_commands(regressor_from_doc(run["tree"]), spec, seeds,
+                                       scale=scale, tolerance=COMMAND_TOLERANCE, seed=seed)
+        return {"arrays": CommandArrays.from_command_tree(chosen).to_doc(), "rows": rows,
+                "scale": scale}
+
+    return load_or_compute("box-commands", params, compute, cache_dir=cfg.cache_dir,
+                           codec="json", refresh=cfg.refresh)
+
+
+def box_refine_config(cfg: Config, task: Task):
+    """The task's refinement budget (``Task.refine``), shrunk under ``smoke``."""
+    config = refine_config(cfg, task)
+    return replace(config, stages=tuple(s for s in config.stages if s == "cma") or ("cma",))
+
+
+def refine_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
+                  leaves: int | None = None) -> CommandRefinement:
+    """The command tree of :func:`commands_cached`, refined by return (cached)."""
+    spec = get_task(task)
+    source = commands_cached(cfg, spec, algo, method, seed, leaves)["arrays"]
+    config = box_refine_config(cfg, spec)
+    params = {"task": spec.name, "algo": algo, "seed": seed, "tree": _digest(source),
+              "config": config.as_params(), "decimals": DECIMALS}
+
+    def compute() -> dict[str, Any]:
+        return refine_commands(CommandArrays.from_doc(source), spec, config, seed,
+                               decimals=DECIMALS, progress=cfg.progress).to_doc()
+
+    doc = load_or_compute("box-refine", params, compute, cache_dir=cfg.cache_dir,
+                          codec="json", refresh=cfg.refresh)
+    return CommandRefinement.from_doc(doc)
+
+
+def command_bt(arrays: CommandArrays, task: Task, method: str) -> BehaviorTree:
+    """One synthesiser's verified BT of a command tree, with its command table."""
+    tree = command_tree_of(arrays, task)
+    bt = get_synthesiser(method)(tree.tree, tree.task).bt  # every synthesiser verifies
+    return replace(bt, commands=tree.commands)
+
+
+def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,
+                    episodes: int | None = None) -> dict[str, Any]:
+    """Every front synthesiser's BT of a command tree (nodes each), the smallest one's JSON
+    document, and its final-episode statistics rolled out from that JSON text (cached)."""
+    spec = get_task(task)
+    n = episodes or cfg.final_episodes
+    synthesisers = front_synthesisers()
+    params = {"task": spec.name, "tree": _digest(arrays.to_doc()), "episodes": n,
+              "synthesisers": list(synthesisers)}
+
+    def compute() -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        bts = {}
+        for method in synthesisers:
+            bts[method] = command_bt(arrays, spec, method)
+            out[f"nodes_{method.replace('-', '_')}"] = bts[method].node_count
+        smallest = min(synthesisers, key=lambda m: (bts[m].node_count, synthesisers.index(m)))
+        text = bts[smallest].to_json()
+        policy = CommandBTPolicy(spec, BehaviorTree.from_json(text))
+        result = rollout(spec, policy.act, final_seeds(n))
+        returns = np.asarray(result.returns)
+        out.update({"bt_method": smallest, "bt_nodes": bts[smallest].node_count,
+                    "bt": json.loads(text), "episodes": n, "mean_return": float(returns.mean()),
+                    "std_return": float(returns.std()),
+                    "share_200": float((returns >= 200).mean())})
+        return out
+
+    return load_or_compute("box-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                           refresh=cfg.refresh)
+
+
+@dataclass(frozen=True)
+class BoxPoint:
+    """One continuous run: a method's tree at a leaf limit, refined or not, for one seed."""
+
+    task: str
+    algo: str
+    method: str
+    seed: int
+    leaves: int | None
+    refined: bool
+
+
+def random_return(cfg: Config, task: Task) -> float:
+    """The random policy's mean return (``random.csv`` of the experts' folder)."""
+    table = pd.read_csv(cfg.experts_dir / "random.csv")
+    return float(table.loc[table["task"] == task.name, "mean_return"].iloc[0])
+
+
+def point_arrays(cfg: Config, point: BoxPoint) -> tuple[CommandArrays, dict[str, Any]]:
+    """A point's command tree and what made it (commands chosen, refinement)."""
+    spec = get_task(point.task)
+    chosen = commands_cached(cfg, spec, point.algo, point.method, point.seed, point.leaves)
+    info: dict[str, Any] = {"commands_tree_return": chosen["rows"][-1]["tree_return"]}
+    if not point.refined:
+        return CommandArrays.from_doc(chosen["arrays"]), info
+    record = refine_cached(cfg, spec, point.algo, point.method, point.seed, point.leaves)
+    info.update({"refine_episodes": record.episodes, "refine_cpu_s": record.cpu_seconds,
+                 "refine_steps": record.steps,
+                 "selection_before": record.selection_means[0],
+                 "selection_after": record.selection_means[record.best_index]})
+    return record.best, info
+
+
+def point_row(cfg: Config, point: BoxPoint, episodes: int | None = None) -> dict[str, Any]:
+    """One row of the continuous table: sizes, commands, return and retention."""
+    spec = get_task(point.task)
+    arrays, info = point_arrays(cfg, point)
+    result = evaluate_cached(cfg, spec, arrays, episodes)
+    expert = expert_evaluation(cfg, spec, point.algo)["mean_return"]
+    rand = random_return(cfg, spec)
+    return {"task": point.task, "algo": point.algo, "method": point.method, "seed": point.seed,
+            "leaf_limit": point.leaves or spec.budget.max_leaf_nodes, "refined": point.refined,
+            "leaves": arrays.n_leaves, "commands": arrays.n_commands,
+            "bt_method": result["bt_method"], "bt_nodes": result["bt_nodes"],
+            "episodes": result["episodes"], "mean_return": result["mean_return"],
+            "std_return": result["std_return"], "share_200": result["share_200"],
+            "expert_return": expert, "random_return": rand,
+            "retention_norm": retention_norm(result["mean_return"], expert, rand), **info}
+
+
+def continuous_table(cfg: Config, points: list[BoxPoint], episodes: int | None = None
+                     ) -> pd.DataFrame:
+    """:func:`point_row` of every point (computed or read from the cache)."""
+    rows = [point_row(cfg, p, episodes) for p in tqdm(points, desc="continuous points",
+                                                      disable=not cfg.progress, leave=False)]
+    return pd.DataFrame(rows)
+
+
+def sweep_points(tasks: dict[str, tuple[str, str]], leaf_limits: list[int], seeds: list[int],
+                 refined: bool) -> list[BoxPoint]:
+    """Points of ``tasks`` (name -> (algo, method)) at every leaf limit and seed."""
+    return [BoxPoint(name, algo, method, seed, leaves, refined)
+            for name, (algo, method) in tasks.items() for leaves in leaf_limits
+            for seed in seeds]
+
+
+def point_bt(cfg: Config, point: BoxPoint) -> BehaviorTree:
+    """A point's smallest verified BT (from the ``box-eval`` cache)."""
+    arrays, _ = point_arrays(cfg, point)
+    return BehaviorTree.from_dict(evaluate_cached(cfg, get_task(point.task), arrays)["bt"])
+
+
+#: The issue's anchors (issue 25): regression trees distilled from the SB3-zoo PPO expert by
+#: KohlerHECTOR/interpretable-rl-zoo, run by a previous session here on 50 episodes, and ICCT's
+#: DAgger tree baseline as its README reports it; a tree of L leaves has 2L - 1 nodes.
+ANCHORS: tuple[tuple[str, str, int, float], ...] = (
+    ("interpretable-rl-zoo tree, run here", "LunarLanderContinuous-v3", 8, 61.2),
+    ("interpretable-rl-zoo tree, run here", "LunarLanderContinuous-v3", 16, 129.5),
+    ("interpretable-rl-zoo tree, run here", "LunarLanderContinuous-v3", 32, 202.8),
+    ("ICCT DAgger tree (published)", "LunarLanderContinuous-v3", 32, 184.7),
+    ("interpretable-rl-zoo tree, run here", "Pendulum-v1", 8, -767.4),
+    ("interpretable-rl-zoo tree, run here", "Pendulum-v1", 16, -420.4),
+    ("interpretable-rl-zoo tree, run here", "Pendulum-v1", 32, -287.1),
+)
+
+#: The issue's done-when bars: (task, at most this many leaves, at least this mean return).
+TARGETS: tuple[tuple[str, int, float], ...] = (
+    ("LunarLanderContinuous-v3", 16, 210.0), ("Pendulum-v1", 16, -250.0),
+    ("MountainCarContinuous-v0", 4, 90.0))
+
+
+def anchor_table(tasks: list[str]) -> pd.DataFrame:
+    """:data:`ANCHORS` of ``tasks`` (source, task, leaves, tree_nodes, mean_return)."""
+    rows = [{"source": s, "task": t, "leaves": n, "tree_nodes": 2 * n - 1, "mean_return": r}
+            for s, t, n, r in ANCHORS if t in tasks]
+    return pd.DataFrame(rows, columns=["source", "task", "leaves", "tree_nodes", "mean_return"])
+
+
+def target_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Each target against the best mean over seeds of any kind (distilled or refined) whose
+    leaf limit fits the bar, on the table's final episodes."""
+    rows = []
+    for task, leaves, bar in TARGETS:
+        runs = table[(table["task"] == task) & (table["leaf_limit"] <= leaves)]
+        if runs.empty:
+            continue
+        means = runs.groupby(["refined", "leaf_limit"]).agg(
+            seeds=("seed", "count"), leaves=("leaves", "max"), bt_nodes=("bt_nodes", "mean"),
+            mean_return=("mean_return", "mean"), lowest_seed=("mean_return", "min"),
+            highest_seed=("mean_return", "max")).reset_index()
+        best = means.sort_values("mean_return", ascending=False).iloc[0]
+        rows.append({"task": task, "max_leaves": leaves, "min_return": bar,
+                     "refined": bool(best["refined"]), "leaf_limit": int(best["leaf_limit"]),
+                     "seeds": int(best["seeds"]), "leaves_used": int(best["leaves"]),
+                     "bt_nodes": float(best["bt_nodes"]),
+                     "mean_return": float(best["mean_return"]),
+                     "lowest_seed": float(best["lowest_seed"]),
+                     "highest_seed": float(best["highest_seed"]),
+                     "met": bool(best["mean_return"] >= bar)})
+    return pd.DataFrame(rows)
