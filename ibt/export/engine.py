@@ -360,6 +360,13 @@ def compare_rollouts(task: Task, engine: EngineTree, seeds: Sequence[int],
     played = engine_rollout(task, engine, seeds, on_step=record)
     states = np.concatenate(seen) if seen else np.empty((0, task.n_features), np.float32)
     actions = np.concatenate(chosen) if chosen else np.empty(0, np.int64)
+    if engine.bt.commands is not None:  # a Box task: the command vectors, row by row
+        from ibt.synth.commands import CommandBTPolicy, bt_actions
+
+        ours = bt_actions(engine.bt, states).reshape(actions.shape)
+        disagreements = int(np.sum(np.any(ours != actions, axis=-1))) if len(states) else 0
+        python = rollout(task, CommandBTPolicy(task, engine.bt).act, seeds)
+        return RolloutComparison(played, python, len(states), disagreements, states)
     disagreements = int(np.sum(engine.bt.decide(states) != actions))
     python = rollout(task, BTPolicy(task, engine.bt).act, seeds)
     return RolloutComparison(played, python, len(states), disagreements, states)
@@ -429,6 +436,46 @@ def _other_task_hint(xml: str, task: Task) -> str:
     return f" It reads as a BT of {fits[0]}: pass --task {fits[0]}" if len(fits) == 1 else ""
 
 
+def xml_commands(xml: str, task: Task, source: str = "the XML") -> Commands:
+    """The command table a Box task's XML writes: every ``Script`` node's id and values
+    (``command := 2; main_engine := 0.8; ...``, as :func:`ibt.export.btcpp.command_code`
+    writes them); ids must run ``0 .. k-1`` and one id always write the same values."""
+    from ibt.bt.model import Action, BehaviorTree
+    from ibt.export.btcpp import command_keys
+
+    dims = tuple(task.action_names)
+    units = tuple(task.action_units or ("",) * len(dims))
+    shell = BehaviorTree(Action(0), tuple(task.feature_names), ("command 0",), (),
+                         Commands(dims, units, ((0.0,) * len(dims),)))
+    keys = command_keys(shell)
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError as err:
+        raise ValueError(f"{source}: not well-formed XML ({err})") from None
+    table: dict[int, tuple[float, ...]] = {}
+    for element in root.iter("Script"):
+        code = element.get("code", "")
+        assigned = {p[0].strip(): p[1].strip() for p in
+                    (part.split(":=") for part in code.split(";")) if len(p) == 2}
+        try:
+            ident = int(assigned[keys[0]])
+            values = tuple(float(assigned[k]) for k in keys[1:])
+        except (KeyError, ValueError):
+            raise ValueError(f"{source}: Script {code!r} does not write {task.name}'s command "
+                             f"({'; '.join(f'{k} := ...' for k in keys)})") from None
+        if not all(np.isfinite(values)):
+            raise ValueError(f"{source}: Script {code!r} writes a value that is not a finite "
+                             "number")
+        if table.setdefault(ident, values) != values:
+            raise ValueError(f"{source}: command {ident} writes two different values")
+    if sorted(table) != list(range(len(table))) or not table:
+        raise ValueError(f"{source}: its Script nodes write command ids {sorted(table)}; "
+                         f"expected 0 to {len(table) - 1} (a BT of {task.name} with commands)")
+    commands = Commands(dims, units, tuple(table[i] for i in range(len(table))))
+    task.check_action(commands.array())
+    return commands
+
+
 def run_btcpp(path: str | Path, task: Task, episodes: int, groot_port: int | None = None,
               step_delay: float = 0.0) -> EngineRun:
     """Roll the XML at ``path`` out in BehaviorTree.CPP on the fixed evaluation episodes, with
@@ -447,7 +494,12 @@ def run_btcpp(path: str | Path, task: Task, episodes: int, groot_port: int | Non
                                 f"ibt export BT.json --format btcpp-xml -o {path}`")
     text = path.read_text()
     try:
-        engine = load_engine_tree(text, task, source=str(path))
+        if task.continuous:  # the command table is the XML's own Script nodes
+            commands = xml_commands(text, task, str(path))
+            names = tuple(f"command {i}" for i in range(len(commands.values)))
+            engine = EngineTree(text, task.feature_names, names, str(path), commands)
+        else:
+            engine = load_engine_tree(text, task, source=str(path))
     except ValueError as err:
         raise ValueError(f"{err}{_other_task_hint(text, task)}") from None
     publisher = engine.groot_publisher(groot_port) if groot_port is not None else None
