@@ -264,8 +264,14 @@ def test_cli_distils_synthesises_evaluates_and_exports_a_box_task(tmp_path, caps
     assert main(["export", str(bt_file), "--format", "btcpp-xml", "-o", str(xml)]) == 0
     assert "<Action" not in xml.read_text()
     capsys.readouterr()
-    _one_line_exit_2(["refine", str(tree), "-o", str(tmp_path / "r.json")], capsys,
-                     "command tree")
+    _one_line_exit_2(["refine", str(tree), "-o", str(tmp_path / "r.json"), "--max-leaves",
+                      "2"], capsys, "command tree")
+    # refinement by return of a command tree: same shape, same command count, a valid file
+    assert main(["refine", str(tree), "-o", str(tmp_path / "r.json"), "--episodes", "200",
+                 "--quiet"]) == 0
+    refined = load_tree_file(tmp_path / "r.json")
+    assert refined["tree"].get_n_leaves() <= doc["tree"].get_n_leaves()
+    assert len(refined["commands"]["values"]) == len(doc["commands"]["values"])
 
 
 def test_a_gymnasium_box_env_becomes_a_task_with_commands():

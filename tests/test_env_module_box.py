@@ -92,7 +92,13 @@ def test_own_box_environment_distils_synthesises_evaluates_and_exports(user, tmp
     doc = load_tree_file(tree)
     assert doc["task"] == "Thruster-v0" and doc["env_modules"] == ["ibt_user_thruster"]
     assert doc["tree"].get_n_leaves() <= BOX_MAX_LEAF_NODES  # a readable BT by default
-    assert main(["synthesize", str(tree), "-o", str(bt), *env]) == 0
+    refined = tmp_path / "refined.json"
+    assert main(["refine", str(tree), "-o", str(refined), "--episodes", "120", "--quiet",
+                 *env]) == 0
+    assert "refinement episodes" in capsys.readouterr().out
+    assert load_tree_file(refined)["tree"].get_n_leaves() <= doc["tree"].get_n_leaves()
+    assert main(["synthesize", str(refined), "-o", str(bt), *env]) == 0
+    tree = refined  # the refined command tree is evaluated beside its BT below
     written = json.loads(bt.read_text())
     assert len(written["commands"]["dimensions"]) == 1  # the one force dimension
     capsys.readouterr()

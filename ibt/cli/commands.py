@@ -174,9 +174,8 @@ def _refine(args: argparse.Namespace) -> int:
     overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
     if args.episodes is not None:
         overrides["episodes"] = args.episodes
-    if "commands" in doc:
-        raise UsageError(f"{args.tree} is a command tree (continuous actions): refinement by "
-                         "return does not take one yet; synthesise it as it is")
+    if "commands" in doc:  # continuous actions: CMA-ES on thresholds and command values
+        return _refine_commands(doc, task, out, overrides, args)
     config = task_config(task, **overrides)
     record = refine(doc["tree"], task, config, seed=args.seed, progress=not args.quiet)
     tree = record.best_tree
@@ -195,6 +194,45 @@ def _refine(args: argparse.Namespace) -> int:
     print(f"{task.name}: {start} -> {record.best.n_leaves} leaves, "
           f"held-out return {before:.2f} -> {after:.2f} ({record.episodes} refinement "
           f"episodes, {record.cpu_seconds:.0f} s CPU); written to {out}")
+    return 0
+
+
+def _refine_commands(doc: dict[str, Any], task: Any, out: Path, overrides: dict[str, Any],
+                     args: argparse.Namespace) -> int:
+    """``refine`` of a command tree (issue 25): its shape and command ids stay, thresholds and
+    command values are tuned by CMA-ES (:mod:`ibt.refine.commands`)."""
+    import numpy as np
+
+    from ibt.bt.model import Commands
+    from ibt.distill.tree_file import save_tree_file
+    from ibt.refine.commands import CommandArrays, refine_commands
+    from ibt.refine.tree_arrays import TreeArrays
+    from ibt.runs.continuous import box_refine_task_config, command_tree_of
+    from ibt.synth.commands import DECIMALS
+    from ibt.tasks.catalogue import resolve_task
+
+    if overrides.pop("max_leaves") is not None:
+        raise UsageError(f"{args.tree} is a command tree: refinement keeps its shape, so "
+                         "--max-leaves does not apply; distil with --max-leaf-nodes instead")
+    box = resolve_task(task.name)
+    commands = Commands.from_dict(doc["commands"], len(doc["action_names"]))
+    arrays = CommandArrays(TreeArrays.from_sklearn(doc["tree"]),
+                           commands.array().astype(np.float64))
+    config = box_refine_task_config(box, **overrides)
+    record = refine_commands(arrays, box, config, seed=args.seed, decimals=DECIMALS,
+                             progress=not args.quiet)
+    chosen = command_tree_of(record.best, box)
+    info = {k: v for k, v in doc.items() if k in ("algo", "method", "seed")}
+    save_tree_file(out, chosen.tree, chosen.task, {
+        **info, "refined_from": str(args.tree), "commands": chosen.commands.to_dict(),
+        "refinement": {"stages": record.stages, "selection_means": record.selection_means,
+                       "best_index": record.best_index, "config": record.config},
+        "env_modules": args.env_module})
+    before, after = record.selection_means[0], record.selection_means[record.best_index]
+    print(f"{box.name}: {record.best.n_leaves} leaves, {record.best.n_commands} commands "
+          f"({'; '.join(chosen.task.action_names)}), held-out return {before:.2f} -> "
+          f"{after:.2f} ({record.episodes} refinement episodes, {record.cpu_seconds:.0f} s "
+          f"CPU); written to {out}")
     return 0
 
 

@@ -52,6 +52,7 @@ from ibt.synth.commands import (
 )
 from ibt.synth.registry import front_synthesisers, get_synthesiser
 from ibt.tasks.catalogue import get_task
+from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
 
 COMMAND_TOLERANCE = 0.01  #: choose_commands' tolerance (share of expert minus random return)
@@ -128,9 +129,16 @@ def commands_cached(cfg: Config, task: str | Task, algo: str, method: str, seed:
                            codec="json", refresh=cfg.refresh)
 
 
-def box_refine_config(cfg: Config, task: Task):
+def box_refine_config(cfg: Config, task: Task) -> RefineConfig:
     """The task's refinement budget (``Task.refine``), shrunk under ``smoke``."""
     config = refine_config(cfg, task)
+    return replace(config, stages=tuple(s for s in config.stages if s == "cma") or ("cma",))
+
+
+def box_refine_task_config(task: Task, **overrides: Any) -> RefineConfig:
+    """The task's refinement budget with ``overrides``, its CMA-ES stages only (a user's task
+    without a budget of its own gets the default's)."""
+    config = replace(task.refine, **overrides)
     return replace(config, stages=tuple(s for s in config.stages if s == "cma") or ("cma",))
 
 
