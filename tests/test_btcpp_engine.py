@@ -127,6 +127,13 @@ def test_leaf_regions_partition_and_decide(path):
     every action the BT takes on random states (a cheap check of leaf_regions itself)."""
     task = get_task(path.parts[-3])
     bt = load_json(path)
+    if bt.relational_count:  # relational BTs (issue 26): regions are polytopes
+        from ibt.bt.polytope import bt_regions, find_state
+
+        for tests, action in bt_regions(bt):
+            state = find_state(bt.n_features, tests, task.low, task.high)
+            assert state is None or bt.decide(state[None])[0] == action
+        return
     regions = leaf_regions(bt)
     lo = np.array([r.lo for r in regions])
     hi = np.array([r.hi for r in regions])

@@ -199,9 +199,6 @@ def condition_code(node: Condition, keys: Seq[str]) -> str:
 def _element(node: Node, bt: BehaviorTree, ids: list[str], keys: list[str],
              flavour: str) -> ET.Element:
     if isinstance(node, Condition):
-        if node.form is not None and flavour != "portable":
-            raise ValueError("a relational condition has no CheckFeature form; export this BT "
-                             "with flavour='portable' (a ScriptCondition)")
         if flavour == "portable":
             return ET.Element(SCRIPT_CONDITION, {"code": condition_code(node, keys),
                                                  "name": xml_safe(bt.label(node))})
@@ -253,6 +250,12 @@ def to_btcpp_xml(bt: BehaviorTree, tree_id: str = "MainTree", flavour: str = "po
                          f"{FLAVOURS}")
     ids = action_ids(bt.action_names)
     keys = blackboard_keys(bt.feature_names)
+    for node in bt.nodes():  # checked here: ElementTree masks errors raised while building
+        if isinstance(node, Condition) and node.form is not None:
+            if flavour != "portable":
+                raise ValueError("a relational condition has no CheckFeature form; export "
+                                 "this BT with flavour='portable' (a ScriptCondition)")
+            condition_code(node, keys)
     root = ET.Element("root", {"BTCPP_format": "4"})
     if flavour == "portable":
         root.append(ET.Comment(_keys_comment(bt, keys)))

@@ -69,7 +69,7 @@ def augmented_task(task: Task, feature_map: FeatureMap) -> Task:
         low.append(a[0] + b[0])
         high.append(a[1] + b[1])
     return replace(task, feature_names=feature_map.names(task.feature_names), low=tuple(low),
-                   high=tuple(high), discrete_state=False)
+                   high=tuple(high), discrete_state=False, integer_features=False)
 
 
 def rewrite(node: Node, feature_map: FeatureMap) -> Node:

@@ -189,6 +189,12 @@ class Film:
             self._drawings[key] = Image.open(io.BytesIO(png)).convert("RGB")
         return self._drawings[key]
 
+    def _read(self, node: Condition) -> str:
+        """What a condition reads: a feature's name, or a relational condition's form."""
+        if node.form is not None:
+            return node.form.text(self.bt.feature_names)
+        return self.bt.feature_names[node.feature]
+
     def caption(self, step: Step) -> tuple[str, str]:
         head = (f"{self.task.name}: the Imitation-BT of the {self.algo.upper()} expert, "
                 f"step {step.t}, return so far {step.total_return:.1f}")
@@ -197,14 +203,15 @@ class Film:
         node = self.nodes[deciding] if deciding is not None else None
         if isinstance(node, Condition):
             ok = next(s.success for s in step.trace if s.index == deciding)
-            value = float(step.features[node.feature])
-            labels = dict(self.bt.value_labels).get(node.feature)
+            value = float(node.value(np.asarray(step.features, dtype=np.float64)))
+            labels = (dict(self.bt.value_labels).get(node.feature) if node.form is None
+                      else None)
             if labels and value.is_integer() and 0 <= value < len(labels):
                 shown = labels[int(value)]
             else:
                 shown = f"{int(value)}" if value.is_integer() else f"{value:.4g}"
             why = (f"   ◆ {self.bt.label(node)}: {'true' if ok else 'false'} "
-                   f"({self.bt.feature_names[node.feature]} = {shown})")
+                   f"({self._read(node)} = {shown})")
         return head, f"action: {self.bt.action_names[step.action]}{why}"
 
     def frame(self, step: Step):

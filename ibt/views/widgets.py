@@ -142,8 +142,8 @@ def trace_view(bt: BehaviorTree, state: Seq[float] | np.ndarray) -> TraceView:
     rows = []
     for index, node in enumerate(bt.nodes()):
         if isinstance(node, Condition):
-            value = x[node.feature]
-            holds = value <= node.threshold if node.op == "<=" else value > node.threshold
+            value = node.value(x)  # the feature, or a relational condition's form
+            holds = node.holds(x)
             rows.append({"node": index, "condition": bt.label(node),
                          "value": float(value), "holds": bool(holds),
                          "ticked": index in ticked})
