@@ -12,6 +12,11 @@ viper           1, then 0                    resampled with p ~ max_a Q - min_a 
 imitation-bt    1 - i/N                      resampled with p ~ max_a Q - min_a Q
 ==============  ===========================  =========================================
 
+Beyond the paper, ``imitation-bt+rel`` is Imitation-BT's setting with another tree learner:
+:func:`ibt.distill.relational.fit_relational_tree`, whose splits may be relational tests
+``w1 * x_i + w2 * x_j <= t`` where they beat every axis-aligned split by a margin (issue 26).
+A method's ``learner`` names its tree fit; the paper's four fit scikit-learn's CART.
+
 Each iteration rolls out the mixed policy (per step, the expert's action with probability
 beta_i, else the current tree's) in whole episodes until the iteration's label budget is spent;
 the expert labels every visited state; the data are aggregated; a tree is fitted; the tree is
@@ -40,6 +45,7 @@ from ibt.tasks.task import Task
 class Method:
     schedule: schedules.Schedule
     weighted: bool
+    learner: str = "cart"  # "cart" (scikit-learn) or "relational" (ibt.distill.relational)
 
 
 METHODS: dict[str, Method] = {
@@ -47,6 +53,7 @@ METHODS: dict[str, Method] = {
     "dagger": Method(schedules.exponential(0.5), weighted=False),
     "viper": Method(schedules.first_only(), weighted=True),
     "imitation-bt": Method(schedules.linear(), weighted=True),
+    "imitation-bt+rel": Method(schedules.linear(), weighted=True, learner="relational"),
 }
 
 
@@ -136,8 +143,12 @@ def tree_signature(tree: DecisionTreeClassifier) -> bytes:
     head = np.array([t.node_count, len(classes), tree.n_features_in_], dtype=np.int64)
     parts = [head, t.feature, t.threshold, t.children_left, t.children_right,
              np.argmax(t.value[:, 0, :], axis=1)]
-    return (b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
-            + repr(classes.tolist()).encode())
+    out = (b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
+           + repr(classes.tolist()).encode())
+    feature_map = getattr(tree, "feature_map_", None)  # a relational tree: its derived columns
+    if feature_map is not None:
+        out += b"\0relational\0" + repr(feature_map.to_json()).encode()
+    return out
 
 
 _signature = tree_signature  # the former private name (kept for existing callers)
@@ -158,6 +169,10 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
     scored: dict[bytes, tuple[float, float]] = {}
     eval_seeds = selection_seeds(config.selection_episodes, seed)
     learner: CompiledTree | None = None
+    relational = METHODS[config.method].learner == "relational"
+    if relational and config.ccp_alpha:
+        raise ValueError("the relational learner grows to max_leaf_nodes/max_depth; it has no "
+                         "cost-complexity pruning (ccp_alpha must be 0)")
     start = time.perf_counter()
     bar = tqdm(range(n), desc=f"{config.method} {task.name}/{expert.algo} s{seed}",
                disable=not progress, leave=False)
@@ -186,11 +201,17 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
             p = w / w.sum() if w.sum() > 0 else None
             idx = rng.choice(len(x), size=len(x), replace=True, p=p)
             x, y = x[idx], y[idx]
-        tree = DecisionTreeClassifier(max_leaf_nodes=config.max_leaf_nodes,
-                                      max_depth=config.max_depth, ccp_alpha=config.ccp_alpha,
-                                      random_state=seed)
-        tree.fit(x, y)
-        learner = CompiledTree(tree)
+        if relational:
+            from ibt.distill.relational import fit_relational_tree
+
+            tree = fit_relational_tree(x, y, max_leaf_nodes=config.max_leaf_nodes,
+                                       max_depth=config.max_depth, seed=seed)
+        else:
+            tree = DecisionTreeClassifier(max_leaf_nodes=config.max_leaf_nodes,
+                                          max_depth=config.max_depth,
+                                          ccp_alpha=config.ccp_alpha, random_state=seed)
+            tree.fit(x, y)
+        learner = CompiledTree(tree)  # a relational tree's derived columns included
         key = tree_signature(tree)
         if key not in scored:
             result = rollout(task, learner_policy(task, learner), eval_seeds,

@@ -11,6 +11,9 @@ JSON carries ``None``, booleans, integers, strings, lists, string-keyed dicts an
 scalar, ``{"__items__": [[k, v], ...]}`` for a dict with other keys, an array reference
 ``{"__array__": [pool, offset, shape]}``, ``{"__sklearn_tree__": {attribute: value}}`` for a
 fitted ``DecisionTreeClassifier`` (its whole ``__dict__``, in order) and
+``{"__sklearn_relational_tree__": {attribute: value}}`` for a fitted
+:class:`ibt.distill.relational.RelationalTreeClassifier` (the same, its ``feature_map_`` as the
+plain JSON of :meth:`ibt.bt.linear.FeatureMap.to_json`),
 ``{"__sklearn_Tree__": ...}`` for its ``tree_`` (the arguments of ``Tree(n_features, n_classes,
 n_outputs)`` and the state ``Tree.__setstate__`` takes, node records split into one array per
 field). ``__tree_arrays__`` is reserved for :mod:`ibt.runs.payloads`. The round trip is exact:
@@ -32,7 +35,9 @@ from typing import Any
 import numpy as np
 
 TAGS = frozenset({"__tuple__", "__float__", "__numpy__", "__array__", "__items__",
-                  "__sklearn_tree__", "__sklearn_Tree__", "__tree_arrays__"})
+                  "__sklearn_tree__", "__sklearn_Tree__", "__tree_arrays__",
+                  "__sklearn_relational_tree__"})
+_FEATURE_MAP = "feature_map_"  # a relational tree's attribute holding its FeatureMap
 _ARRAY_KINDS = "biuf"  # bool, signed and unsigned integers, floats: what np.load reads plainly
 _SCALAR_KINDS = "biufU"
 _ORDER = {"=": "", "|": "", "<": "le" if np.little_endian else "", ">": "" if np.little_endian
@@ -97,6 +102,12 @@ class PlainEncoder:
             return self.array(value)
         if kind is DecisionTreeClassifier:
             return {"__sklearn_tree__": {k: self.encode(v) for k, v in vars(value).items()}}
+        from ibt.distill.relational import RelationalTreeClassifier
+
+        if kind is RelationalTreeClassifier:
+            return {"__sklearn_relational_tree__": {
+                k: (v.to_json() if k == _FEATURE_MAP else self.encode(v))
+                for k, v in vars(value).items()}}
         if kind is Tree:
             state = value.__getstate__()
             nodes = state["nodes"]
@@ -169,6 +180,23 @@ class PlainDecoder:
             model = DecisionTreeClassifier.__new__(DecisionTreeClassifier)
             model.__dict__.update({k: self.decode(v) for k, v in body.items()})
             return model
+        if tag == "__sklearn_relational_tree__":
+            from ibt.bt.linear import FeatureMap
+            from ibt.distill.relational import RelationalTreeClassifier
+
+            relational = RelationalTreeClassifier.__new__(RelationalTreeClassifier)
+            try:
+                relational.__dict__.update({
+                    k: (FeatureMap.from_json(v) if k == _FEATURE_MAP else self.decode(v))
+                    for k, v in body.items()})
+            except (TypeError, ValueError, KeyError) as err:
+                if isinstance(err, PlainDataError):
+                    raise
+                raise PlainDataError(f"a relational tree's feature map is invalid ({err})"
+                                     ) from None
+            if _FEATURE_MAP not in relational.__dict__:
+                raise PlainDataError("a relational tree without its feature map")
+            return relational
         if tag == "__sklearn_Tree__":
             return self._tree(body)
         return self.decode_other(tag, body)
@@ -237,11 +265,18 @@ def from_document(data: Any) -> Any:
         raise PlainDataError(f"undecodable ({type(err).__name__}: {err})") from None
 
 
-def tree_to_data(model: Any) -> dict[str, Any]:
-    """A fitted ``DecisionTreeClassifier`` as one JSON-able document (:func:`to_document`)."""
+def _tree_types() -> tuple[type, ...]:
     from sklearn.tree import DecisionTreeClassifier
 
-    if type(model) is not DecisionTreeClassifier or not hasattr(model, "tree_"):
+    from ibt.distill.relational import RelationalTreeClassifier
+
+    return (DecisionTreeClassifier, RelationalTreeClassifier)
+
+
+def tree_to_data(model: Any) -> dict[str, Any]:
+    """A fitted ``DecisionTreeClassifier`` (or relational tree) as one JSON-able document
+    (:func:`to_document`)."""
+    if type(model) not in _tree_types() or not hasattr(model, "tree_"):
         raise TypeError("expected a fitted sklearn DecisionTreeClassifier")
     return to_document(model)
 
@@ -249,10 +284,8 @@ def tree_to_data(model: Any) -> dict[str, Any]:
 def tree_from_data(data: Any) -> Any:
     """The fitted tree of a :func:`tree_to_data` document, its structure checked: node arrays
     of one length, children after their parent (no cycle), features and classes in range."""
-    from sklearn.tree import DecisionTreeClassifier
-
     model = from_document(data)
-    if type(model) is not DecisionTreeClassifier or not hasattr(model, "tree_"):
+    if type(model) not in _tree_types() or not hasattr(model, "tree_"):
         raise PlainDataError("the document holds no fitted decision tree")
     check_tree(model)
     return model
@@ -279,3 +312,7 @@ def check_tree(model: Any) -> None:
     if not ok:
         raise PlainDataError("its nodes do not form a decision tree (children before their "
                              "parent, out of range, or sizes that disagree)")
+    fmap = getattr(model, _FEATURE_MAP, None)
+    if fmap is not None and getattr(fmap, "width", None) != n_features:
+        raise PlainDataError(f"the relational tree reads {n_features} columns, its feature "
+                             "map defines a different number")

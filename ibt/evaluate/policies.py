@@ -27,9 +27,13 @@ SMALL_BATCH = 64
 
 
 class CompiledTree:
-    """A fitted CART tree as flat arrays; ``predict`` equals scikit-learn's on every input."""
+    """A fitted CART tree as flat arrays; ``predict`` equals scikit-learn's on every input.
+
+    A relational tree (:class:`ibt.distill.relational.RelationalTreeClassifier`) takes
+    observed features too: its derived columns are appended first (its ``feature_map_``)."""
 
     def __init__(self, tree: DecisionTreeClassifier) -> None:
+        self.feature_map = getattr(tree, "feature_map_", None)
         t = tree.tree_
         self.feature = np.where(t.feature >= 0, t.feature, 0).astype(np.intp)
         self.threshold = t.threshold.astype(np.float64)
@@ -41,6 +45,8 @@ class CompiledTree:
         self.depth = int(tree.get_depth())
 
     def predict(self, features: np.ndarray) -> np.ndarray:
+        if self.feature_map is not None:
+            features = self.feature_map.augment(np.atleast_2d(features))
         x = as_features(np.atleast_2d(features))
         if len(x) <= SMALL_BATCH:  # a rollout's few rows: walking in Python beats array passes
             return self._predict_rows(x)

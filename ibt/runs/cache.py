@@ -77,6 +77,9 @@ CODE_VERSIONS: dict[str, int] = {
     "box-commands": 1,  # commands_cached: ibt.synth.commands.choose_commands
     "box-refine": 1,  # refine_cached: ibt.refine.commands.refine_commands
     "box-eval": 1,  # evaluate_cached: verified BTs of a command tree, final return from JSON
+    # relational tests (issue 26): ibt.runs.relational
+    "distill-rel": 1,  # distill_rel: the loop as imitation-bt+rel (the relational learner)
+    "refine-rel": 1,  # refine_rel: ibt.refine.relational.refine_relational of such a tree
 }
 READS_ENV = "IBT_CACHE_READS"
 

@@ -63,6 +63,11 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                    "runs/front.py", *_TREES, *_ROLLOUT),
     "box-eval": ("runs/continuous.py", "synth/commands.py", "refine/commands.py", *_TREES,
                  *_SYNTH, *_ROLLOUT),
+    "distill-rel": ("distill/relational.py", "bt/linear.py", "distill/loop.py",
+                    "distill/schedules.py", "experts/expert.py", "runs/relational.py",
+                    "runs/pipeline.py", *_ROLLOUT),
+    "refine-rel": ("refine/relational.py", "refine/by_return.py", "distill/relational.py",
+                   "bt/linear.py", "runs/relational.py", "runs/front.py", *_TREES, *_ROLLOUT),
 }
 
 

@@ -263,6 +263,7 @@ def difference(a: Any, b: Any, where: str = "value") -> str | None:
     Arrays are compared byte for byte (structured ones field by field), fitted scikit-learn
     trees by their whole ``__dict__`` and ``tree_`` state, dataclasses field by field.
     """
+    from sklearn.tree import DecisionTreeClassifier
     from sklearn.tree._tree import Tree
 
     if type(a) is not type(b):
@@ -295,6 +296,7 @@ def difference(a: Any, b: Any, where: str = "value") -> str | None:
     if is_dataclass(a) and not isinstance(a, type):
         return difference({f.name: getattr(a, f.name) for f in fields(a)},
                           {f.name: getattr(b, f.name) for f in fields(b)}, where)
-    if hasattr(a, "__dict__") and type(a).__module__.startswith("sklearn."):
-        return difference(dict(vars(a)), dict(vars(b)), where)
+    if hasattr(a, "__dict__") and (type(a).__module__.startswith("sklearn.")
+                                   or isinstance(a, DecisionTreeClassifier)):
+        return difference(dict(vars(a)), dict(vars(b)), where)  # relational trees too
     return None if a == b else f"{where}: {a!r} != {b!r}"
