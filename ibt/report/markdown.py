@@ -459,11 +459,44 @@ def _structure(res: Results) -> str | None:
         "Costa et al. 2024) at its own size.", "", table])
 
 
+def ablation_markdown(res: Results) -> str | None:
+    """The structure search with and without the expert's help (``structure_ablation.csv``):
+    per task, expert and leaf limit, means over seeds of the polished trees' 100 final
+    episodes and smallest verified BTs; None when absent."""
+    rows = res.table("structure_ablation")
+    if rows is None or rows.empty:
+        return None
+    lines = ["| task | expert | leaf limit | seeds | with the expert: mean return | BT nodes "
+             "| reward alone: mean return | BT nodes | difference |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for (task, expert, limit), g in rows.groupby(["task", "expert", "max_leaf_nodes"],
+                                                 sort=False):
+        helped, alone = g[g["expert_help"]], g[~g["expert_help"]]
+        lines.append(f"| {task} | {expert} | {int(limit)} | {len(helped)} | "
+                     f"{helped['mean_return'].mean():.1f} | {helped['bt_nodes'].mean():.1f} | "
+                     f"{alone['mean_return'].mean():.1f} | {alone['bt_nodes'].mean():.1f} | "
+                     f"{helped['mean_return'].mean() - alone['mean_return'].mean():+.1f} |")
+    return "\n".join(lines)
+
+
+def _ablation(res: Results) -> str | None:
+    table = ablation_markdown(res)
+    if table is None:
+        return None
+    return "\n".join([
+        "The same structure search on the same seed trees, budget and seeds, with the expert's "
+        "labels (\"grow\" by a CART stump on them, \"relabel\" by their majority) and without "
+        "(reward alone); each polished the same way and evaluated on 100 final episodes.", "",
+        table])
+
+
 BEYOND: list[BeyondPart] = [
     BeyondPart("Small BTs that keep the expert: Imitation-BT+ and the size-retention front",
                "front.csv", _front),
     BeyondPart("Imitation-BT+S: ahead of the published small trees at their own size?",
                "front_protocol.csv", _structure),
+    BeyondPart("Imitation-BT+S: what the expert's help adds", "structure_ablation.csv",
+               _ablation),
     BeyondPart("Decision-list synthesis: nodes against Imitation-BT's", "synthesis.csv",
                _decision_list),
 ]

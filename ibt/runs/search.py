@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ibt.bt.model import BehaviorTree
-from ibt.evaluate.rollouts import final_seeds, rollout
+from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.experts.expert import expert_path, load_expert
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement, refine
@@ -36,12 +36,17 @@ from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig, RefineConfig
 from ibt.tasks.task import Task
 
-__all__ = ["STRUCTURE", "evolve_cached", "protocol_evaluation", "structure_run"]
+__all__ = ["STRUCTURE", "evolve_cached", "expert_help_table", "protocol_evaluation",
+           "structure_run"]
 
 
-def evolve_config(cfg: Config, task: Task, max_leaves: int) -> EvolveConfig:
-    """The task's structure-search budget at a leaf limit, shrunk to seconds under ``smoke``."""
+def evolve_config(cfg: Config, task: Task, max_leaves: int, use_expert: bool = True
+                  ) -> EvolveConfig:
+    """The task's structure-search budget at a leaf limit, shrunk to seconds under ``smoke``;
+    ``use_expert=False`` is the ablation without the expert's labels (reward alone)."""
     config = replace(task.evolve or EvolveConfig(), max_leaves=max_leaves)
+    if not use_expert:
+        config = replace(config, use_expert=False)
     if cfg.profile == "smoke":
         config = replace(config, episodes=240, mu=2, lam=4, generation_episodes=2,
                          pool_episodes=2, selection_episodes=3, finalists=3, n_envs=8,
@@ -68,11 +73,11 @@ def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
     return [plus_run(cfg, task, algo, seed, None).tree, best_grid]
 
 
-def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int
-                  ) -> Evolution:
+def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
+                  use_expert: bool = True) -> Evolution:
     """The structure search of one run (cached on its seed trees and settings)."""
     spec = get_task(task)
-    config = evolve_config(cfg, spec, max_leaves)
+    config = evolve_config(cfg, spec, max_leaves, use_expert)
     sources = seed_trees(cfg, spec, algo, seed)
     path = expert_path(spec, algo, cfg.experts_dir)
     params = {"task": spec.name, "algo": algo, "seed": seed,
@@ -110,13 +115,14 @@ class StructureResult:
         return self.evolution.steps + self.polish.steps
 
 
-def structure_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int
-                  ) -> StructureResult:
-    """Structure search, then the polish of its winner (each cached)."""
+def structure_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
+                  use_expert: bool = True) -> StructureResult:
+    """Structure search, then the polish of its winner (each cached); ``use_expert=False``:
+    the ablation that searches on reward alone."""
     spec = get_task(task)
-    evolution = evolve_cached(cfg, spec, algo, seed, max_leaves)
+    evolution = evolve_cached(cfg, spec, algo, seed, max_leaves, use_expert)
     tree = evolution.best_tree
-    polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
+    polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves, use_expert))
     params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": STRUCTURE,
               "tree": tree_digest(tree), "config": polish.as_params()}
 
@@ -190,4 +196,38 @@ def protocol_table(cfg: Config, table: Any, threshold: dict[str, float] | None =
                      "anchor_mean_return": anchor.mean_return if anchor else None,
                      "anchor_max_bt_nodes": anchor.max_bt_nodes if anchor else None,
                      "anchor_min_share": anchor.min_share if anchor else None})
+    return pd.DataFrame(rows)
+
+
+def expert_help_table(cfg: Config, experts: dict[str, list[str]], leaves: dict[str, list[int]],
+                      seeds: list[int]) -> Any:
+    """What the expert's help adds to the structure search: each run with its labels ("grow"
+    by a CART stump on them, "relabel" by its majority) and without (reward alone), on the
+    same seed trees, budget and seeds; the polished tree's 100 final episodes and its
+    smallest verified BT. One row per run and variant."""
+    import pandas as pd
+
+    from ibt.runs.front import bt_sizes
+    from ibt.runs.grid import evaluate_tree, expert_evaluation
+
+    rows = []
+    for task, algos in experts.items():
+        spec = get_task(task)
+        for algo in algos:
+            expert = expert_evaluation(cfg, spec, algo)["mean_return"]
+            for max_leaves in leaves.get(task, []):
+                for seed in seeds:
+                    for use_expert in (True, False):
+                        found = structure_run(cfg, spec, algo, seed, max_leaves, use_expert)
+                        evaluation = evaluate_tree(cfg, spec, found.tree)
+                        sizes = bt_sizes(cfg, spec, found.tree)
+                        rows.append({
+                            "task": spec.name, "expert": algo, "max_leaf_nodes": max_leaves,
+                            "seed": seed, "expert_help": use_expert,
+                            "tree_leaves": sizes["tree_leaves"], "bt_nodes": sizes["bt_nodes"],
+                            "mean_return": evaluation["mean_return"],
+                            "retention_norm": retention_norm(
+                                evaluation["mean_return"], expert,
+                                spec.random_return(cfg.experts_dir)),
+                            "cpu_seconds": round(found.cpu_seconds, 1)})
     return pd.DataFrame(rows)
