@@ -259,6 +259,18 @@ def test_every_synthesiser_takes_a_relational_tree(method):
     assert BehaviorTree.from_json(bt.to_json()) == bt  # and its coverage is proved
 
 
+def test_a_users_synthesiser_takes_relational_trees_through_the_registry():
+    """A synthesiser registered by a user (no ``check`` option, knows nothing of forms) gets
+    the augmented view; the registry rewrites and verifies its BT in observed space."""
+    from ibt.synth.registry import Synthesiser
+
+    toy = Synthesiser("toy-tree-shaped", "tests.fixtures.toy_synthesiser:tree_shaped_bt")
+    tree = fit_relational(seed=3)
+    result = toy(tree, LINE)
+    assert result.bt.relational_count > 0 and result.feature_map == tree.feature_map_
+    assert verify(result.bt, tree, LINE) > 20_000
+
+
 def test_relational_thresholds_are_exact_thresholds_of_the_tree():
     tree = fit_relational(seed=4)
     bt = imitation_bt(tree, LINE).bt
