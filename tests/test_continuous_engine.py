@@ -51,3 +51,38 @@ def test_engine_refuses_a_command_outside_the_box_and_a_nan(tmp_path):
         path.write_text(xml[:start] + bad + xml[end:])
         with pytest.raises(ValueError, match=match):
             run_btcpp(path, task, episodes=1)
+
+
+def _committed() -> list[tuple[str, object]]:
+    """Every committed BT with commands (``data/trees/<task>/<expert>/*.json``) and its task."""
+    from ibt.bt.json_io import load_json
+    from ibt.paths import DATA_DIR
+
+    found = []
+    for path in sorted((DATA_DIR / "trees").glob("*/*/*.json")):
+        task = path.parts[-3]
+        if task in ("LunarLanderContinuous-v3", "Pendulum-v1", "MountainCarContinuous-v0"):
+            found.append((task, load_json(path)))
+    return found
+
+
+def test_every_committed_continuous_bt_loads_in_the_stock_engine_and_agrees():
+    """Nothing registered; decisions and command values equal on states inside every region
+    and on both sides of every threshold; its committed XML is what the exporter writes."""
+    from ibt.export.engine import EngineTree, agreement_states
+    from ibt.paths import DATA_DIR
+    from ibt.synth.commands import bt_actions
+
+    committed = _committed()
+    if not committed:
+        pytest.skip("no continuous BT committed yet")
+    for task_name, bt in committed:
+        task = get_task(task_name)
+        xml = to_btcpp_xml(bt)
+        on_disk = sorted((DATA_DIR / "trees" / task_name).glob("*/*.xml"))
+        assert any(p.read_text() == xml for p in on_disk), task_name
+        engine = EngineTree(xml, task.feature_names, bt.action_names, commands=bt.commands)
+        assert engine.command_keys is not None
+        states = agreement_states(bt, task, n_random=2000)
+        assert np.array_equal(engine.decide(states), bt.decide(states))
+        assert np.array_equal(engine.act(states[:500]), bt_actions(bt, states[:500]))
