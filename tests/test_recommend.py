@@ -86,8 +86,10 @@ def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):
     task = resolve_task("ToyCart-v0")
     rec = recommend(task, "ppo", agents / "cart.zip", budget=parse_budget("smoke"),
                     leaf_limits=(4, 8), cache_dir=tmp_path / "cache", progress=False)
-    assert [(c.leaf_limit, c.stage) for c in rec.candidates] == [
-        (4, "distilled"), (4, "refined"), (8, "distilled"), (8, "refined")]
+    assert [(c.leaf_limit, c.label) for c in rec.candidates] == [
+        (4, "distilled"), (4, "refined"), (8, "distilled"), (8, "refined"),
+        (4, "distilled, relational"), (4, "refined, relational"),
+        (8, "distilled, relational"), (8, "refined, relational")]
     for c in rec.candidates:  # every synthesiser's BT decides as its tree
         for bt in c.bts.values():
             verify(bt, c.tree, task)

@@ -162,3 +162,22 @@ def test_the_loop_distils_relational_trees_and_refinement_keeps_them(go_to_targe
     got = rollout(task, TreePolicy(task, refined).act, seeds).returns
     assert np.array_equal(got, rollout(aug, lambda o: record.best.predict(aug.features(o)),
                                        seeds).returns)
+
+
+@pytest.mark.slow
+def test_the_cli_distils_a_relational_tree_file_and_synthesises_it(tmp_path, capsys):
+    from ibt.cli import main
+    from ibt.distill.tree_file import load_tree_file
+    from tests.fixtures.go_to_target import CHECKPOINT
+
+    tree_path, bt_path = tmp_path / "tree.json", tmp_path / "bt.json"
+    common = ["--env-module", "tests.fixtures.go_to_target"]
+    assert main(["distill", "GoToTarget-v0", "ppo", "--checkpoint", str(CHECKPOINT),
+                 "--method", "imitation-bt+rel", "--iterations", "2", "--labels", "300",
+                 "--selection-episodes", "2", "-o", str(tree_path), "--quiet", *common]) == 0
+    tree = load_tree_file(tree_path)["tree"]
+    assert isinstance(tree, RelationalTreeClassifier) and relational_tests(tree) >= 1
+    assert main(["synthesize", str(tree_path), "-o", str(bt_path), *common]) == 0
+    from ibt.bt.json_io import load_json
+
+    assert load_json(bt_path).relational_count >= 1

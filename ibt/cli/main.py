@@ -123,7 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     dist.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert); a "
                       "checkpoint is code (pickles): use only ones from a trusted source")
     dist.add_argument("--method", default="imitation-bt",
-                      choices=("bc", "dagger", "viper", "imitation-bt"))
+                      choices=("bc", "dagger", "viper", "imitation-bt", "imitation-bt+rel"))
     dist.add_argument("--seed", type=SEED, default=0)
     dist.add_argument("--iterations", type=ITERATIONS, default=None,
                       help="default 50; on a Box task (continuous actions) its budget's, or 20")

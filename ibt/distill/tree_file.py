@@ -144,9 +144,11 @@ def _check_names(doc: dict[str, Any], path: Path) -> None:
 
 def _check_fit(doc: dict[str, Any], path: Path) -> None:
     tree, names, actions = doc["tree"], doc["feature_names"], doc["action_names"]
-    if tree.n_features_in_ != len(names) or not set(map(int, tree.classes_)) <= set(
+    fmap = getattr(tree, "feature_map_", None)  # a relational tree reads its observed features
+    reads = tree.n_features_in_ if fmap is None else fmap.n_features
+    if reads != len(names) or not set(map(int, tree.classes_)) <= set(
             range(len(actions))):
-        raise TreeFileError(f"{path} is inconsistent: its tree reads {tree.n_features_in_} "
+        raise TreeFileError(f"{path} is inconsistent: its tree reads {reads} "
                             f"features and predicts {sorted(map(int, tree.classes_))}, but it "
                             f"names {len(names)} features and {len(actions)} actions; distil it "
                             "again")

@@ -7,6 +7,12 @@ The steps of the grid and the front, for a user's own checkpoint: distil at seve
 smallest BT. Every step is cached (:func:`ibt.runs.cache.load_or_compute`, the grid's keys with
 the checkpoint's digest), so raising the budget or the leaf limits reruns only what changed.
 
+With ``relational`` (the default), each leaf limit is also distilled by ``imitation-bt+rel``
+(the same loop with the relational learner of :mod:`ibt.distill.relational`, whose splits may
+test ``w1 * x_i + w2 * x_j``) and refined the same way (:mod:`ibt.runs.relational`); such a
+candidate is recommended only where its BT is strictly smaller than every axis-aligned one that
+keeps the target (ties go to the axis-aligned BT, which is easier to read).
+
 Two sets of held-out episodes, disjoint from the distillation's training and selection episodes
 and from refinement's: the *choice* episodes (the final-evaluation seeds,
 :func:`ibt.evaluate.rollouts.final_seeds`) place every candidate on the front and choose the
@@ -83,6 +89,17 @@ class Candidate:
     mean_return: float  # on the choice episodes (the tree's; every BT decides as it does)
     std_return: float
     retention: float  # random-normalised, %, on the choice episodes
+    relational: bool = False  # distilled by imitation-bt+rel (splits may be relational)
+
+    @property
+    def label(self) -> str:
+        """``distilled``, ``refined``, or either with ``, relational``."""
+        return f"{self.stage}, relational" if self.relational else self.stage
+
+    @property
+    def relational_tests(self) -> int:
+        """Relational conditions of the candidate's smallest BT."""
+        return int(self.bt.relational_count)
 
     @property
     def bt_method(self) -> str:
@@ -103,6 +120,7 @@ class Candidate:
 
     def row(self) -> dict[str, Any]:
         return {"leaf_limit": self.leaf_limit, "stage": self.stage, "leaves": self.leaves,
+                "relational": self.relational, "relational_tests": self.relational_tests,
                 "bt_nodes": self.bt_nodes, "bt_method": self.bt_method,
                 **{f"nodes_{m}": bt.node_count for m, bt in self.bts.items()},
                 "mean_return": self.mean_return, "retention_norm": self.retention}
@@ -178,8 +196,14 @@ def _refine_config(cfg: Config, task: Task, budget: Budget) -> Any:
     return replace(config, episodes=episodes, cma_generations=generations)
 
 
-def distil(cfg: Config, task: Task, algo: str, checkpoint: Path, leaves: int, seed: int) -> Any:
-    """The distillation at ``leaves`` (cached with the grid's key: the checkpoint's digest)."""
+def distil(cfg: Config, task: Task, algo: str, checkpoint: Path, leaves: int, seed: int,
+           relational: bool = False) -> Any:
+    """The distillation at ``leaves`` (cached with the grid's key: the checkpoint's digest);
+    ``relational``: by ``imitation-bt+rel`` (:func:`ibt.runs.relational.distill_rel`)."""
+    if relational:
+        from ibt.runs.relational import distill_rel
+
+        return distill_rel(cfg, task, algo, seed, leaves, checkpoint=checkpoint)
     from ibt.distill.loop import distill
     from ibt.experts.expert import load_expert
     from ibt.runs.pipeline import distill_config
@@ -197,11 +221,18 @@ def distil(cfg: Config, task: Task, algo: str, checkpoint: Path, leaves: int, se
 
 
 def refined(cfg: Config, task: Task, algo: str, tree: Any, seed: int, budget: Budget) -> Any:
-    """The tree refined by return (cached with the front's key)."""
+    """The tree refined by return (cached with the front's key; a relational tree by
+    :func:`ibt.runs.relational.refine_rel`)."""
+    from ibt.distill.relational import RelationalTreeClassifier
     from ibt.refine.by_return import refine
     from ibt.runs.grid import tree_digest
 
     config = _refine_config(cfg, task, budget)
+    if isinstance(tree, RelationalTreeClassifier):
+        from ibt.refine.relational import best_tree
+        from ibt.runs.relational import refine_rel
+
+        return best_tree(refine_rel(cfg, task, algo, tree, seed, config))
     params = {"task": task.name, "algo": algo, "seed": seed, "source_method": SOURCE_METHOD,
               "tree": tree_digest(tree), "config": config.as_params()}
 
@@ -267,19 +298,19 @@ def bt_digest(bt: Any) -> str:
 
 
 def choose(candidates: list[Candidate], keep: float) -> tuple[Candidate, bool]:
-    """The smallest BT keeping ``keep`` (ties: higher retention), else the best retention
-    (ties: fewer nodes); and whether the target was met."""
+    """The smallest BT keeping ``keep`` (ties: axis-aligned, then higher retention), else the
+    best retention (ties: fewer nodes, then axis-aligned); and whether the target was met."""
     meeting = [c for c in candidates if c.retention >= 100 * keep]
     if meeting:
-        return min(meeting, key=lambda c: (c.bt_nodes, -c.retention)), True
-    return max(candidates, key=lambda c: (c.retention, -c.bt_nodes)), False
+        return min(meeting, key=lambda c: (c.bt_nodes, c.relational, -c.retention)), True
+    return max(candidates, key=lambda c: (c.retention, -c.bt_nodes, not c.relational)), False
 
 
 def recommend(task: Task, algo: str, checkpoint: str | Path, *, keep: float = DEFAULT_KEEP,
               budget: Budget | None = None, leaf_limits: tuple[int, ...] = LEAF_LIMITS,
               seed: int = 0, episodes: int | None = None, cache_dir: str | Path,
               progress: bool = True, argv: list[str] | None = None,
-              env_modules: tuple[str, ...] = ()) -> Recommendation:
+              env_modules: tuple[str, ...] = (), relational: bool = True) -> Recommendation:
     """Distil, refine, synthesise and evaluate; the recommended BT and everything measured."""
     from ibt.evaluate.policies import BTPolicy, TreePolicy
     from ibt.experts.expert import load_expert
@@ -294,22 +325,25 @@ def recommend(task: Task, algo: str, checkpoint: str | Path, *, keep: float = DE
     random_key = {"algo": "random", "policy": "uniform", "rng_seed": RANDOM_SEED}
     agent_choice = returns_of(quiet, task, agent_key, lambda: expert.act, 0).mean
     random_choice = returns_of(quiet, task, random_key, lambda: random_act(task), 0).mean
-    steps = [(L, stage) for L in leaf_limits for stage in ("distilled", "refined")]
+    learners = (False, True) if relational and task.n_features >= 2 else (False,)
+    steps = [(L, stage, rel) for rel in learners for L in leaf_limits
+             for stage in ("distilled", "refined")]
     bar = tqdm(steps, desc=f"pipeline {task.name}/{algo}", unit="tree", disable=not progress)
     candidates: list[Candidate] = []
-    trees: dict[int, Any] = {}
-    for leaves, stage in bar:
-        bar.set_postfix_str(f"{stage} at {leaves} leaves")
+    trees: dict[tuple[int, bool], Any] = {}
+    for leaves, stage, rel in bar:
+        bar.set_postfix_str(f"{stage}{' relational' if rel else ''} at {leaves} leaves")
         if stage == "distilled":
-            tree = trees[leaves] = distil(cfg, task, algo, checkpoint, leaves, seed).best_tree
+            tree = trees[leaves, rel] = distil(cfg, task, algo, checkpoint, leaves, seed,
+                                               rel).best_tree
         else:
-            tree = refined(cfg, task, algo, trees[leaves], seed, budget)
+            tree = refined(cfg, task, algo, trees[leaves, rel], seed, budget)
         bts = synthesised(quiet, task, algo, tree, seed)
         ret = returns_of(quiet, task, {"tree": _tree_key(tree)},
                          lambda tree=tree: TreePolicy(task, tree).act, 0)
         candidates.append(Candidate(leaves, stage, tree, bts, ret.mean,
                                     float(np.std(ret.returns)),
-                                    retention_norm(ret.mean, agent_choice, random_choice)))
+                                    retention_norm(ret.mean, agent_choice, random_choice), rel))
     chosen, met = choose(candidates, keep)
     bt = chosen.bt
     return Recommendation(

@@ -85,8 +85,11 @@ def draw_front(rec: Recommendation, path: Path) -> None:
     from ibt.files import atomic_target
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
-    for stage, marker in (("distilled", "o"), ("refined", "s")):
-        points = [c for c in rec.candidates if c.stage == stage]
+    for stage, marker in (("distilled", "o"), ("refined", "s"), ("distilled, relational", "^"),
+                          ("refined, relational", "D")):
+        points = [c for c in rec.candidates if c.label == stage]
+        if not points:
+            continue
         ax.scatter([c.bt_nodes for c in points], [c.retention for c in points], marker=marker,
                    label=f"{stage} (leaf limits {', '.join(str(c.leaf_limit) for c in points)})",
                    alpha=0.8)
@@ -159,13 +162,13 @@ def report_text(rec: Recommendation, out: Path) -> str:
                    f"episodes; the best one ({c.retention:.1f} % there) keeps "
                    f"{rec.retention:.1f} % on the confirmation episodes. Next: "
                    f"{next_step(rec)}.")
-    rows = ["| leaf limit | stage | leaves | BT nodes | smallest BT by | mean return | "
-            "retention % |", "|---|---|---|---|---|---|---|"]
+    rows = ["| leaf limit | stage | leaves | BT nodes | relational tests | smallest BT by | "
+            "mean return | retention % |", "|---|---|---|---|---|---|---|---|"]
     for cand in rec.candidates:
         mark = " **(recommended)**" if cand is c else ""
-        rows.append(f"| {cand.leaf_limit} | {cand.stage}{mark} | {cand.leaves} | "
-                    f"{cand.bt_nodes} | {cand.bt_method} | {cand.mean_return:.2f} | "
-                    f"{cand.retention:.1f} |")
+        rows.append(f"| {cand.leaf_limit} | {cand.label}{mark} | {cand.leaves} | "
+                    f"{cand.bt_nodes} | {cand.relational_tests} | {cand.bt_method} | "
+                    f"{cand.mean_return:.2f} | {cand.retention:.1f} |")
     returns = ["| policy | mean return | interval of the mean |", "|---|---|---|"]
     for name, r in (("agent", rec.agent), ("recommended BT", rec.bt), ("random", rec.random)):
         returns.append(f"| {name} | {r.mean:.2f} | {_interval(r.returns)} |")
@@ -175,7 +178,7 @@ def report_text(rec: Recommendation, out: Path) -> str:
     lines = [
         f"# A behavior tree for {rec.task.name}'s {rec.algo} agent", "",
         verdict, "",
-        f"Recommended: a **{c.bt_nodes}-node BT** ({c.bt_method}) of the {c.stage} tree at "
+        f"Recommended: a **{c.bt_nodes}-node BT** ({c.bt_method}) of the {c.label} tree at "
         f"leaf limit {c.leaf_limit} ({c.leaves} leaves); every synthesiser's BT of that tree, "
         f"each verified to decide exactly as it does: {sizes} nodes.", "",
         "## Returns on the confirmation episodes", "",
@@ -191,7 +194,11 @@ def report_text(rec: Recommendation, out: Path) -> str:
         f"{rec.agent_choice:.2f}, random {rec.random_choice:.2f}); the recommendation is the "
         f"smallest BT at or above the target there, or the best one when none is. "
         "Distilled trees come from Imitation-BT's interactive loop at each leaf limit; refined "
-        "ones from refinement by return (thresholds, leaf actions, pruning) on other episodes.",
+        "ones from refinement by return (thresholds, leaf actions, pruning) on other episodes. "
+        "*Relational* trees come from the same loop with a learner whose splits may test "
+        "`w1 * x_i + w2 * x_j` where that beats every single-feature split by a margin; one "
+        "is recommended only where its BT is smaller than every single-feature one that keeps "
+        "the target.",
         "", *rows, "", "![front](front.png)", "",
         "## The BT as rules (the first rule that holds decides)", "",
         "```", rules_text(c.bt), "```", "", "![the BT](bt.png)", "",
