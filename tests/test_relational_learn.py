@@ -181,3 +181,20 @@ def test_the_cli_distils_a_relational_tree_file_and_synthesises_it(tmp_path, cap
     from ibt.bt.json_io import load_json
 
     assert load_json(bt_path).relational_count >= 1
+
+
+@pytest.mark.slow
+def test_a_relational_front_row_under_the_smoke_profile(tmp_path):
+    from dataclasses import replace
+
+    import ibt
+    from ibt.runs.relational import REFINED, relational_table
+
+    cfg = replace(ibt.config("smoke"), cache_dir=tmp_path / "cache", progress=False)
+    table = relational_table(cfg, [("CartPole-v1", "dqn")], seeds=[0], leaves=[2])
+    row = table.iloc[0]
+    assert row["method"] == REFINED and row["leaves"] <= 2
+    assert 0 <= row["relational_tests"] <= row["bt_conditions"]
+    assert {"task", "expert", "seed", "bt_nodes", "retention_norm"} <= set(table.columns)
+    again = relational_table(cfg, [("CartPole-v1", "dqn")], seeds=[0], leaves=[2])  # cached
+    assert again.equals(table)
