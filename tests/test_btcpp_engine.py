@@ -36,8 +36,11 @@ from ibt.paths import DATA_DIR
 from ibt.tasks.catalogue import get_task
 
 ROOT = Path(__file__).resolve().parent.parent
-TREES = sorted(DATA_DIR.glob("trees/*/*/*.json"))
-XMLS = sorted(DATA_DIR.glob("trees/*/*/*.xml"))  # BehaviorTree.CPP files committed beside them
+# discrete-action BTs; those with commands (Box tasks) run as Script nodes and are checked in
+# tests/test_continuous_engine.py
+TREES = sorted(p for p in DATA_DIR.glob("trees/*/*/*.json") if not get_task(p.parts[-3]).continuous)
+XMLS = sorted(p for p in DATA_DIR.glob("trees/*/*/*.xml")  # committed beside the JSON files
+              if not get_task(p.parts[-3]).continuous)
 ROLLOUT_TASKS = ("CartPole-v1", "MountainCar-v0", "PackageDelivery-v0")
 MIN_STATES = 10_000
 

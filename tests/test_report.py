@@ -349,8 +349,15 @@ def test_beyond_the_paper_reads_its_tables(tmp_path):
                                             "max_leaf_nodes": [3], "bt_nodes": [9],
                                             "retention_norm": [97.0]}))
     text = markdown.beyond_markdown(res)
-    assert text.count("_not measured") == 1  # Imitation-BT+S's table is not there yet
-    assert "front_protocol.csv" in text
+    assert text.count("_not measured") == 2  # Imitation-BT+S's two tables are not there yet
+    assert "front_protocol.csv" in text and "structure_ablation.csv" in text
+    _write(tmp_path, "structure_ablation", pd.DataFrame([
+        {"task": "MountainCar-v0", "expert": "dqn", "max_leaf_nodes": 3, "seed": 0,
+         "expert_help": helped, "bt_nodes": 6, "mean_return": r}
+        for helped, r in [(True, -110.0), (False, -115.0)]]))
+    text = markdown.beyond_markdown(res)
+    assert "structure_ablation.csv" not in text
+    assert "| MountainCar-v0 | dqn | 3 | 1 | -110.0 | 6.0 | -115.0 | 6.0 | +5.0 |" in text
     assert "| CartPole-v1 | dqn | 20.0 | 10.0 | 0.50 |" in text
     assert "| CartPole-v1 | imitation-bt+ | 9: 97.0 | 97.0 (9) |" in text
 

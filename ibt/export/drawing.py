@@ -187,7 +187,10 @@ class _Drawer:
     def _action(self, node: Action, index: int) -> str:
         name = self._name()
         status = self._status(index)
-        attrs = {"label": plain_label(self._text(node)), "shape": "box",
+        text = self._text(node)
+        if self.bt.commands is not None:  # a command's values one per line: narrower boxes
+            text = text.replace(", ", "\n")
+        attrs = {"label": plain_label(text), "shape": "box",
                  "style": "filled,rounded",
                  "fillcolor": ACTION_FILL}
         attrs.update(self._node_status(status, "filled,rounded"))
@@ -219,8 +222,11 @@ class _Drawer:
                f'COLOR="{line}" BGCOLOR="white"{style}>']
         if header is not None:
             glyph, fill = header
+            shown = html.escape(glyph)
+            if self.bt.commands is not None:  # a command's values one per line: narrower boxes
+                shown = shown.replace(", ", "<BR/>")
             out.append(f'<TR><TD COLSPAN="{ncols}" BGCOLOR="{self._cell_fill(status, fill)}">'
-                       f'<FONT POINT-SIZE="{GLYPH_PT}">{html.escape(glyph)}</FONT></TD></TR>')
+                       f'<FONT POINT-SIZE="{GLYPH_PT}">{shown}</FONT></TD></TR>')
         for k, text in enumerate(intro):
             if k == 0 and header is not None:
                 out.append("<HR/>")

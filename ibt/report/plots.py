@@ -681,7 +681,7 @@ def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.Da
     ``targets``: the issue's bars (task, min_return).
     """
     tasks = list(dict.fromkeys(points["task"]))
-    fig, axes = plt.subplots(1, len(tasks), figsize=(FIG_WIDTH, 3.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(FIG_WIDTH - 0.7, 3.2), squeeze=False)
     handles: dict[str, Any] = {}
     kinds = {False: ("distilled (regression tree, named commands)", "#56B4E9", "o-"),
              True: ("refined by return (Imitation-BT+)", "#E69F00", "D-")}
