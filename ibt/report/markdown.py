@@ -446,17 +446,19 @@ def structure_markdown(res: Results) -> str | None:
     return "\n".join(lines)
 
 
+def _introduced(intro: str, table: str | None) -> str | None:
+    """A beyond-the-paper part: its introduction, then its table (None when absent)."""
+    return None if table is None else "\n".join([intro, "", table])
+
+
 def _structure(res: Results) -> str | None:
-    table = structure_markdown(res)
-    if table is None:
-        return None
-    return "\n".join([
+    return _introduced(
         "Imitation-BT+S (notebook 07: structure search by return seeded with Imitation-BT+'s "
         "and the four grid trees, helped by the expert's labels on the states the small trees "
         "visit, then CMA-ES and pruning) on the published anchors' protocol: each seed's "
         "smallest verified BT rolled out from its JSON document on 1,000 final episodes; means "
         "over seeds. The bar is the best published small policy of the task (MENS-DT-RL, "
-        "Costa et al. 2024) at its own size.", "", table])
+        "Costa et al. 2024) at its own size.", structure_markdown(res))
 
 
 def ablation_markdown(res: Results) -> str | None:
@@ -480,14 +482,11 @@ def ablation_markdown(res: Results) -> str | None:
 
 
 def _ablation(res: Results) -> str | None:
-    table = ablation_markdown(res)
-    if table is None:
-        return None
-    return "\n".join([
+    return _introduced(
         "The same structure search on the same seed trees, budget and seeds, with the expert's "
         "labels (\"grow\" by a CART stump on them, \"relabel\" by their majority) and without "
-        "(reward alone); each polished the same way and evaluated on 100 final episodes.", "",
-        table])
+        "(reward alone); each polished the same way and evaluated on 100 final episodes.",
+        ablation_markdown(res))
 
 
 BEYOND: list[BeyondPart] = [
