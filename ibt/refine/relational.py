@@ -41,6 +41,12 @@ class AugmentedTask(Task):
         base = super().features(obs)
         return base if self.feature_map is None else self.feature_map.augment(base)
 
+    def observations(self, features: np.ndarray) -> np.ndarray:
+        """Augmented rows -> the raw observations (their observed columns)."""
+        x = np.asarray(features)
+        n = self.feature_map.n_features if self.feature_map is not None else x.shape[1]
+        return super().observations(x[:, :n])
+
 
 def augmented_task(task: Task, feature_map: FeatureMap) -> AugmentedTask:
     """``task`` reading ``feature_map``'s augmented rows; each derived column's box is the

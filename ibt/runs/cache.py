@@ -80,6 +80,8 @@ CODE_VERSIONS: dict[str, int] = {
     # relational tests (issue 26): ibt.runs.relational
     "distill-rel": 1,  # distill_rel: the loop as imitation-bt+rel (the relational learner)
     "refine-rel": 1,  # refine_rel: ibt.refine.relational.refine_relational of such a tree
+    # structure search with relational tests (issues 22 and 26): ibt.runs.relational_search
+    "evolve-rel": 1,  # evolve_rel_cached: ibt.refine.relational_structure.evolve_relational
 }
 READS_ENV = "IBT_CACHE_READS"
 

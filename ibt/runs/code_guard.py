@@ -67,7 +67,13 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                     "distill/schedules.py", "experts/expert.py", "runs/relational.py",
                     "runs/pipeline.py", *_ROLLOUT),
     "refine-rel": ("refine/relational.py", "refine/by_return.py", "distill/relational.py",
-                   "bt/linear.py", "runs/relational.py", "runs/front.py", *_TREES, *_ROLLOUT),
+                   "bt/linear.py", "runs/relational.py", "runs/front.py",
+                   "runs/relational_search.py", "refine/relational_structure.py", *_TREES,
+                   *_ROLLOUT),
+    "evolve-rel": ("refine/relational_structure.py", "refine/relational.py",
+                   "refine/structure.py", "distill/relational.py", "bt/linear.py",
+                   "runs/relational_search.py", "runs/search.py", "experts/expert.py", *_TREES,
+                   *_ROLLOUT),
 }
 
 

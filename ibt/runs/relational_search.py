@@ -1,0 +1,163 @@
+"""Imitation-BT+SR on the front: structure search with relational tests, then a polish.
+
+Beyond the paper (issues 22 and 26). For one task, expert, seed and leaf limit, exactly
+Imitation-BT+S (:mod:`ibt.runs.search`: the same seed trees, budget and polish) but searched
+over the observed features *and* the relational learner's candidate columns
+(:func:`ibt.refine.relational_structure.evolve_relational`), so the two methods side by side
+measure what tests that compare features add at a leaf limit:
+
+1. the search, cached under its own kind ``evolve-rel``;
+2. the polish of its winner (kept to the derived columns it tests): CMA-ES on every threshold,
+   relational ones included, then free pruning (:func:`ibt.refine.relational.refine_relational`,
+   cached under ``refine-rel`` with ``source_method`` :data:`METHOD`).
+
+:func:`relational_search_table` gives one row per run on the anchors' protocol (1,000 final
+episodes of the smallest verified BT, rolled out from its JSON) with the 100-episode final
+evaluation and the BT's relational tests.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from ibt.experts.expert import expert_path, load_expert
+from ibt.profiles import Config
+from ibt.refine.by_return import Refinement
+from ibt.refine.structure import Evolution
+from ibt.runs.cache import load_or_compute
+from ibt.runs.grid import tree_digest
+from ibt.runs.search import evolve_config, polish_config, seed_trees
+from ibt.tasks.catalogue import get_task
+from ibt.tasks.task import Task
+
+METHOD = "imitation-bt+sr"  # structure search with relational tests, polished
+
+
+def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int
+                      ) -> Evolution:
+    """The relational structure search of one run (cached on its seed trees and settings)."""
+    from ibt.bt.linear import DEFAULT_WEIGHTS
+    from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
+    from ibt.refine.tree_arrays import TreeArrays
+
+    spec = get_task(task)
+    config = evolve_config(cfg, spec, max_leaves)
+    sources = seed_trees(cfg, spec, algo, seed)
+    path = expert_path(spec, algo, cfg.experts_dir)
+    params = {"task": spec.name, "algo": algo, "seed": seed,
+              "sources": [tree_digest(t) for t in sources], "config": config.as_params(),
+              "weights": [list(w) for w in DEFAULT_WEIGHTS],
+              "candidate_episodes": CANDIDATE_EPISODES}
+
+    def compute() -> Evolution:
+        expert = load_expert(spec, algo, path)
+        return evolve_relational([TreeArrays.from_sklearn(t) for t in sources], spec, config,
+                                 seed, expert=expert, progress=cfg.progress)
+
+    return load_or_compute("evolve-rel", params, compute, cache_dir=cfg.cache_dir,
+                           codec="evolution", refresh=cfg.refresh)
+
+
+@dataclass(frozen=True)
+class RelationalSearchResult:
+    """Imitation-BT+SR for one task, expert, seed and leaf limit, with what it cost."""
+
+    evolution: Evolution
+    polish: Refinement
+
+    @property
+    def tree(self) -> Any:
+        from ibt.refine.relational import best_tree
+
+        return best_tree(self.polish)
+
+    @property
+    def cpu_seconds(self) -> float:
+        return self.evolution.cpu_seconds + self.polish.cpu_seconds
+
+    @property
+    def episodes(self) -> int:
+        return self.evolution.episodes + self.polish.episodes
+
+    @property
+    def steps(self) -> int:
+        return self.evolution.steps + self.polish.steps
+
+
+def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
+                          max_leaves: int) -> RelationalSearchResult:
+    """The relational structure search, then the polish of its winner (each cached)."""
+    from ibt.refine.relational import refine_relational
+    from ibt.refine.relational_structure import winner
+
+    spec = get_task(task)
+    evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves)
+    tree = winner(evolution)
+    polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
+    params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": METHOD,
+              "tree": tree_digest(tree), "config": polish.as_params()}
+
+    def compute() -> Refinement:
+        return refine_relational(tree, spec, polish, seed, progress=cfg.progress)
+
+    refined = load_or_compute("refine-rel", params, compute, cache_dir=cfg.cache_dir,
+                              codec="refinement", refresh=cfg.refresh)
+    return RelationalSearchResult(evolution, refined)
+
+
+def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
+                          max_leaves: int, episodes: int = 1000,
+                          threshold: float | None = 200.0) -> dict[str, Any]:
+    """One run: its smallest verified BT (nodes, relational tests), the 100-episode final
+    evaluation of its tree and the anchors' protocol (``episodes`` final episodes of the BT
+    from its JSON, the share at or above ``threshold``), and what the run cost."""
+    from ibt.bt.model import BehaviorTree
+    from ibt.distill.relational import relational_tests
+    from ibt.evaluate.rollouts import retention_norm
+    from ibt.runs.front import bt_sizes
+    from ibt.runs.grid import evaluate_tree, expert_evaluation
+    from ibt.runs.search import protocol_evaluation
+
+    spec = get_task(task)
+    found = relational_search_run(cfg, spec, algo, seed, max_leaves)
+    tree = found.tree
+    sizes = bt_sizes(cfg, spec, tree)
+    bt = BehaviorTree.from_dict(sizes["bt"])
+    evaluation = evaluate_tree(cfg, spec, tree)
+    protocol = protocol_evaluation(cfg, spec, bt, episodes, threshold)
+    expert = expert_evaluation(cfg, spec, algo)["mean_return"]
+    return {"task": spec.name, "expert": algo, "method": METHOD, "seed": seed,
+            "max_leaf_nodes": max_leaves, "tree_leaves": int(tree.get_n_leaves()),
+            "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
+            "bt_method": sizes["bt_method"], "relational_tests": bt.relational_count,
+            "mean_return": evaluation["mean_return"],
+            "retention_norm": retention_norm(evaluation["mean_return"], expert,
+                                             spec.random_return(cfg.experts_dir)),
+            "protocol_episodes": protocol["episodes"],
+            "protocol_mean_return": protocol["mean_return"],
+            "protocol_std_return": protocol["std_return"],
+            "share_at_threshold": protocol["share_at_threshold"],
+            "threshold": protocol["threshold"],
+            "cpu_seconds": round(found.cpu_seconds, 1), "episodes": found.episodes,
+            "env_steps": found.steps,
+            "search_steps_per_second": round(found.evolution.steps_per_second),
+            "random_steps_per_second": round(found.evolution.random_steps_per_second)}
+
+
+def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: list[int],
+                            leaves: list[int], threshold: dict[str, float] | None = None
+                            ) -> Any:
+    """:func:`relational_search_row` for every (task, expert), leaf limit and seed."""
+    import pandas as pd
+    from tqdm import tqdm
+
+    threshold = threshold or {}
+    runs = [(t, a, L, s) for t, a in experts for L in leaves for s in seeds]
+    rows = [relational_search_row(cfg, t, a, s, L, threshold=threshold.get(t))
+            for t, a, L, s in tqdm(runs, desc="imitation-bt+sr", disable=not cfg.progress)]
+    return pd.DataFrame(rows)
+
+
+__all__ = ["METHOD", "RelationalSearchResult", "evolve_rel_cached", "relational_search_row",
+           "relational_search_run", "relational_search_table"]

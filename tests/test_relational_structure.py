@@ -1,0 +1,81 @@
+"""Structure search with relational tests (Imitation-BT+SR): widened and compacted trees decide
+as the originals, the search is deterministic and within its limit, its winner is a relational
+tree over only the columns it tests, and the expert labels the observed part of a pool row."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from sklearn.tree import DecisionTreeClassifier
+
+import ibt
+from ibt.bt.linear import FeatureMap
+from ibt.distill.relational import RelationalTreeClassifier
+from ibt.refine.relational import augmented_task
+from ibt.refine.relational_structure import compact, evolve_relational, search_map, widen, winner
+from ibt.refine.tree_arrays import TreeArrays
+from ibt.tasks.settings import EvolveConfig
+
+
+def _wide_tree(seed: int, leaves: int, fmap: FeatureMap) -> TreeArrays:
+    rng = np.random.default_rng(seed)
+    x = fmap.augment(rng.normal(size=(400, fmap.n_features)).astype(np.float32))
+    y = rng.integers(3, size=400)
+    return TreeArrays.from_sklearn(
+        DecisionTreeClassifier(max_leaf_nodes=leaves, random_state=seed).fit(x, y))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10**6), st.integers(2, 12), st.integers(0, 10**6))
+def test_compact_keeps_every_decision_and_only_the_tested_columns(tree_seed, leaves, seed):
+    fmap = FeatureMap.pairs(4)
+    tree = _wide_tree(tree_seed, leaves, fmap)
+    small_tree, small = compact(tree, fmap)
+    x = np.random.default_rng(seed).normal(size=(300, 4)).astype(np.float32)
+    assert np.array_equal(small_tree.predict(small.augment(x)), tree.predict(fmap.augment(x)))
+    tested = {int(f) for f, leaf in zip(tree.feature, tree.is_leaf, strict=True)
+              if not leaf and f >= 4}
+    assert len(small.forms) == len(tested)  # the map keeps the derived columns tested, no more
+    assert set(small.forms) == {fmap.form(c) for c in tested}
+
+
+def test_widen_reads_the_observed_columns_of_an_augmented_row():
+    fmap = FeatureMap.pairs(4)
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(300, 4)).astype(np.float32)
+    tree = TreeArrays.from_sklearn(
+        DecisionTreeClassifier(max_leaf_nodes=6, random_state=0).fit(x, rng.integers(2, size=300)))
+    wide = widen(tree, fmap.width)
+    assert wide.n_features == fmap.width
+    assert np.array_equal(wide.predict(fmap.augment(x)), tree.predict(x))
+
+
+def test_the_augmented_task_gives_the_expert_observations():
+    task = ibt.get_task("CartPole-v1")
+    fmap = FeatureMap.pairs(4)
+    wide = augmented_task(task, fmap)
+    obs = np.random.default_rng(1).normal(size=(5, 4)).astype(np.float32)
+    assert np.array_equal(wide.observations(wide.features(obs)), obs)
+
+
+def test_a_small_relational_search_is_deterministic_and_its_winner_relational():
+    task = ibt.get_task("CartPole-v1")
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(300, 4)).astype(np.float32)
+    source = TreeArrays.from_sklearn(
+        DecisionTreeClassifier(max_leaf_nodes=6, random_state=0).fit(x, rng.integers(2, size=300)))
+    config = EvolveConfig(max_leaves=3, episodes=120, mu=2, lam=4, generation_episodes=4,
+                          pool_episodes=2, selection_episodes=4, finalists=3, n_envs=8,
+                          use_expert=False)
+    first = evolve_relational([source], task, config, seed=3, progress=False)
+    second = evolve_relational([source], task, config, seed=3, progress=False)
+    assert first.best.n_leaves <= 3 and first.episodes <= 120
+    assert first.selection_means == second.selection_means
+    assert np.array_equal(first.best.threshold, second.best.threshold)
+    fmap = search_map(task, source)
+    assert first.best.n_features == fmap.width  # the search read every candidate column
+    tree = winner(first)
+    assert isinstance(tree, RelationalTreeClassifier)
+    states = task.sample_features(500, np.random.default_rng(2))
+    assert np.array_equal(tree.predict(states), first.best.predict(fmap.augment(states)))
