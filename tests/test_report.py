@@ -349,8 +349,9 @@ def test_beyond_the_paper_reads_its_tables(tmp_path):
                                             "max_leaf_nodes": [3], "bt_nodes": [9],
                                             "retention_norm": [97.0]}))
     text = markdown.beyond_markdown(res)
-    assert text.count("_not measured") == 2  # Imitation-BT+S's two tables are not there yet
+    assert text.count("_not measured") == 3  # Imitation-BT+S's and +SR's tables are not there
     assert "front_protocol.csv" in text and "structure_ablation.csv" in text
+    assert "relational_search.csv" in text
     _write(tmp_path, "structure_ablation", pd.DataFrame([
         {"task": "MountainCar-v0", "expert": "dqn", "max_leaf_nodes": 3, "seed": 0,
          "expert_help": helped, "bt_nodes": 6, "mean_return": r}
@@ -360,6 +361,29 @@ def test_beyond_the_paper_reads_its_tables(tmp_path):
     assert "| MountainCar-v0 | dqn | 3 | 1 | -110.0 | 6.0 | -115.0 | 6.0 | +5.0 |" in text
     assert "| CartPole-v1 | dqn | 20.0 | 10.0 | 0.50 |" in text
     assert "| CartPole-v1 | imitation-bt+ | 9: 97.0 | 97.0 (9) |" in text
+
+
+def _searched(nodes: list[int], returns: list[float]) -> pd.DataFrame:
+    return pd.DataFrame([
+        {"task": "LunarLander-v3", "expert": "ppo", "max_leaf_nodes": 10, "seed": s,
+         "bt_nodes": n, "relational_tests": 2, "protocol_mean_return": r,
+         "share_at_threshold": 0.8, "cpu_seconds": 600.0, "bar_max_bt_nodes": 25,
+         "bar_min_return": 200.0, "bar_seeds": 3}
+        for s, (n, r) in enumerate(zip(nodes, returns, strict=True))])
+
+
+@pytest.mark.parametrize("nodes, returns, verdict", [
+    ([21, 25, 23], [210.0, 195.0, 205.0], "met"),  # the mean over seeds meets the bar
+    ([21, 26, 23], [210.0, 215.0, 205.0], "missed"),  # one seed's BT is too large
+    ([21, 25, 23], [190.0, 195.0, 205.0], "missed"),  # the mean falls short
+    ([21, 25], [210.0, 215.0], "missed"),  # too few seeds
+])
+def test_relational_search_verdicts_read_the_bar_in_the_table(tmp_path, nodes, returns, verdict):
+    _write(tmp_path, "relational_search", _searched(nodes, returns))
+    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    row = next(line for line in text.splitlines() if line.startswith("| LunarLander-v3"))
+    assert row.endswith(f"| {verdict} |")
+    assert f"| {len(nodes)} | {np.mean(nodes):.1f} ({max(nodes)}) |" in row
 
 
 def test_deviations_name_the_experts_networks_and_steps(tmp_path):

@@ -489,6 +489,46 @@ def _ablation(res: Results) -> str | None:
         ablation_markdown(res))
 
 
+def relational_search_markdown(res: Results) -> str | None:
+    """Imitation-BT+SR on the anchors' protocol (``relational_search.csv``): per task, expert
+    and leaf limit, the committed BTs' 1,000-episode means over seeds against the bar written
+    in the table (``bar_*``: every seed's BT at most so many nodes, the mean over at least so
+    many seeds at least so much); None when absent."""
+    rows = res.table("relational_search")
+    if rows is None or rows.empty:
+        return None
+    lines = ["| task | expert | leaf limit | seeds | BT nodes (max) | relational tests | mean "
+             "return (1,000 episodes) | worst seed | share >= threshold | CPU-min a run | bar | "
+             "verdict |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (task, expert, limit), g in rows.groupby(["task", "expert", "max_leaf_nodes"],
+                                                 sort=False):
+        mean, nodes = g["protocol_mean_return"].mean(), g["bt_nodes"]
+        first = g.iloc[0]
+        bar, verdict = "none", "measured"
+        if pd.notna(first.get("bar_max_bt_nodes")):
+            bar = (f"<= {int(first['bar_max_bt_nodes'])} nodes, >= "
+                   f"{first['bar_min_return']:g} over >= {int(first['bar_seeds'])} seeds")
+            met = (len(g) >= first["bar_seeds"] and nodes.max() <= first["bar_max_bt_nodes"]
+                   and mean >= first["bar_min_return"])
+            verdict = "met" if met else "missed"
+        share = g["share_at_threshold"]
+        share_text = f"{100 * share.mean():.1f} %" if share.notna().any() else "n/a"
+        lines.append(f"| {task} | {expert} | {int(limit)} | {len(g)} | {nodes.mean():.1f} "
+                     f"({int(nodes.max())}) | {g['relational_tests'].mean():.1f} | {mean:.1f} | "
+                     f"{g['protocol_mean_return'].min():.1f} | {share_text} | "
+                     f"{g['cpu_seconds'].mean() / 60:.1f} | {bar} | {verdict} |")
+    return "\n".join(lines)
+
+
+def _relational_search(res: Results) -> str | None:
+    return _introduced(
+        "Imitation-BT+SR (notebook 07): Imitation-BT+S's structure search, on the same seed "
+        "trees, budget and polish, allowed to test `w1 * x_i + w2 * x_j <= t` for any pair of "
+        "non-binary features and the relational learner's weight pairs; each seed's smallest "
+        "verified BT rolled out from its JSON document on 1,000 final episodes. A relational "
+        "test counts as one condition node.", relational_search_markdown(res))
+
+
 BEYOND: list[BeyondPart] = [
     BeyondPart("Small BTs that keep the expert: Imitation-BT+ and the size-retention front",
                "front.csv", _front),
@@ -496,6 +536,8 @@ BEYOND: list[BeyondPart] = [
                "front_protocol.csv", _structure),
     BeyondPart("Imitation-BT+S: what the expert's help adds", "structure_ablation.csv",
                _ablation),
+    BeyondPart("Relational tests: the structure search with conditions that compare features",
+               "relational_search.csv", _relational_search),
     BeyondPart("Decision-list synthesis: nodes against Imitation-BT's", "synthesis.csv",
                _decision_list),
 ]

@@ -32,6 +32,11 @@ from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
 METHOD = "imitation-bt+sr"  # structure search with relational tests, polished
+#: Issue 26's bar on the anchors' protocol, written beside each row so the report reads it from
+#: the CSV: every seed's BT at most this many nodes, the mean return over seeds (1,000 final
+#: episodes each) at least this, over at least this many seeds
+BARS: dict[str, dict[str, float]] = {
+    "LunarLander-v3": {"bar_max_bt_nodes": 25, "bar_min_return": 200.0, "bar_seeds": 3}}
 
 
 def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int
@@ -142,7 +147,9 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
             "cpu_seconds": round(found.cpu_seconds, 1), "episodes": found.episodes,
             "env_steps": found.steps,
             "search_steps_per_second": round(found.evolution.steps_per_second),
-            "random_steps_per_second": round(found.evolution.random_steps_per_second)}
+            "random_steps_per_second": round(found.evolution.random_steps_per_second),
+            **{key: BARS.get(spec.name, {}).get(key)
+               for key in ("bar_max_bt_nodes", "bar_min_return", "bar_seeds")}}
 
 
 def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: list[int],
@@ -159,5 +166,5 @@ def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: 
     return pd.DataFrame(rows)
 
 
-__all__ = ["METHOD", "RelationalSearchResult", "evolve_rel_cached", "relational_search_row",
+__all__ = ["BARS", "METHOD", "RelationalSearchResult", "evolve_rel_cached", "relational_search_row",
            "relational_search_run", "relational_search_table"]
