@@ -36,15 +36,20 @@ OKABE_ITO = ("#000000", "#E69F00", "#56B4E9", "#009E73", "#F0E442", "#0072B2", "
 GREY = "#999999"
 
 METHOD_ORDER = ("bc", "dagger", "viper", "imitation-bt", "imitation-bt+", "imitation-bt+s",
-                "decision-list", "bt-espresso", "re-bt-espresso")
+                "imitation-bt+rel+", "imitation-bt+sr", "decision-list", "bt-espresso",
+                "re-bt-espresso")
 METHOD_COLORS = {"bc": GREY, "dagger": "#56B4E9", "viper": "#0072B2",
                  "imitation-bt": "#D55E00", "imitation-bt+": "#E69F00",
                  "imitation-bt+s": "#000000", "decision-list": "#CC79A7", "bt-espresso": "#F0E442",
-                 "re-bt-espresso": "#009E73"}
+                 "re-bt-espresso": "#009E73",
+                 # relational tests (issue 26): never on a panel with the two synthesisers above
+                 "imitation-bt+rel+": "#CC79A7", "imitation-bt+sr": "#009E73"}
 #: the two baselines are synthesised from the BC tree: hatched like it is their source
 METHOD_HATCHES = {"bt-espresso": "//", "re-bt-espresso": "\\\\"}
 METHOD_LABELS = {"bc": "BC", "dagger": "DAgger", "viper": "VIPER", "imitation-bt": "Imitation-BT",
                  "imitation-bt+": "Imitation-BT+", "imitation-bt+s": "Imitation-BT+S",
+                 "imitation-bt+rel+": "Imitation-BT+ (relational)",
+                 "imitation-bt+sr": "Imitation-BT+SR (relational)",
                  "decision-list": "decision list",
                  "bt-espresso": "BT-Espresso", "re-bt-espresso": "RE:BT-Espresso"}
 BASELINE_NOTE = ("BT-Espresso and RE:BT-Espresso are synthesised from the BC tree and decide "
@@ -629,7 +634,8 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
             handle = ax.errorbar(line["bt_nodes"], line["retention_norm"],
                                  yerr=[(line["retention_norm"] - line["low"]).clip(lower=0),
                                        (line["high"] - line["retention_norm"]).clip(lower=0)],
-                                 fmt={"imitation-bt+": "D-", "imitation-bt+s": "s-"}.get(
+                                 fmt={"imitation-bt+": "D-", "imitation-bt+s": "s-",
+                                      "imitation-bt+rel+": "v-", "imitation-bt+sr": "^-"}.get(
                                      method, "o-"), ms=4,
                                  capsize=2, lw=1.2, color=style["color"],
                                  label=style["label"])
