@@ -634,6 +634,12 @@ def readme_block(res: Results) -> str:
            "against the best published small tree of each task at its own size:", "",
            structure, ""]
           if (structure := structure_markdown(res)) is not None else []),
+        *(["With tests that compare features: **Imitation-BT+SR** (notebook 07) runs the same "
+           "search allowed to test `w1 * x_i + w2 * x_j <= t`; its BTs on the same protocol, "
+           "against issue 26's bar (the relational points on the front: "
+           "[figures/front_relational.png](figures/front_relational.png)):", "",
+           searched, ""]
+          if (searched := relational_search_markdown(res)) is not None else []),
         timings_markdown(res),
         "",
         README_END,
