@@ -27,7 +27,7 @@ from ibt.refine.by_return import Refinement
 from ibt.refine.structure import Evolution
 from ibt.runs.cache import load_or_compute
 from ibt.runs.grid import tree_digest
-from ibt.runs.search import evolve_config, polish_config, seed_trees
+from ibt.runs.search import StructureResult, evolve_config, polish_config, seed_trees
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
@@ -65,29 +65,15 @@ def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_l
 
 
 @dataclass(frozen=True)
-class RelationalSearchResult:
-    """Imitation-BT+SR for one task, expert, seed and leaf limit, with what it cost."""
-
-    evolution: Evolution
-    polish: Refinement
+class RelationalSearchResult(StructureResult):
+    """Imitation-BT+SR for one task, expert, seed and leaf limit (its costs as
+    :class:`ibt.runs.search.StructureResult`'s); the tree is relational."""
 
     @property
     def tree(self) -> Any:
         from ibt.refine.relational import best_tree
 
         return best_tree(self.polish)
-
-    @property
-    def cpu_seconds(self) -> float:
-        return self.evolution.cpu_seconds + self.polish.cpu_seconds
-
-    @property
-    def episodes(self) -> int:
-        return self.evolution.episodes + self.polish.episodes
-
-    @property
-    def steps(self) -> int:
-        return self.evolution.steps + self.polish.steps
 
 
 def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
