@@ -383,7 +383,7 @@ def test_relational_search_verdicts_read_the_bar_in_the_table(tmp_path, nodes, r
     text = markdown.relational_search_markdown(stats.Results(tmp_path))
     row = next(line for line in text.splitlines() if line.startswith("| LunarLander-v3"))
     assert row.endswith(f"| {verdict} |")
-    assert f"| {len(nodes)} | {np.mean(nodes):.1f} ({max(nodes)}) |" in row
+    assert f"| budget trees | {len(nodes)} | {np.mean(nodes):.1f} ({max(nodes)}) |" in row
 
 
 def test_deviations_name_the_experts_networks_and_steps(tmp_path):

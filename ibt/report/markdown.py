@@ -497,11 +497,13 @@ def relational_search_markdown(res: Results) -> str | None:
     rows = res.table("relational_search")
     if rows is None or rows.empty:
         return None
-    lines = ["| task | expert | leaf limit | seeds | BT nodes (max) | relational tests | mean "
-             "return (1,000 episodes) | worst seed | share >= threshold | CPU-min a run | bar | "
-             "verdict |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for (task, expert, limit), g in rows.groupby(["task", "expert", "max_leaf_nodes"],
-                                                 sort=False):
+    if "seeded_with" not in rows:
+        rows = rows.assign(seeded_with="budget trees")
+    lines = ["| task | expert | leaf limit | seed trees | seeds | BT nodes (max) | relational "
+             "tests | mean return (1,000 episodes) | worst seed | share >= threshold | CPU-min "
+             "a run | bar | verdict |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (task, expert, limit, seeded), g in rows.groupby(
+            ["task", "expert", "max_leaf_nodes", "seeded_with"], sort=False):
         mean, nodes = g["protocol_mean_return"].mean(), g["bt_nodes"]
         first = g.iloc[0]
         bar, verdict = "none", "measured"
@@ -513,7 +515,8 @@ def relational_search_markdown(res: Results) -> str | None:
             verdict = "met" if met else "missed"
         share = g["share_at_threshold"]
         share_text = f"{100 * share.mean():.1f} %" if share.notna().any() else "n/a"
-        lines.append(f"| {task} | {expert} | {int(limit)} | {len(g)} | {nodes.mean():.1f} "
+        lines.append(f"| {task} | {expert} | {int(limit)} | {seeded} | {len(g)} | "
+                     f"{nodes.mean():.1f} "
                      f"({int(nodes.max())}) | {g['relational_tests'].mean():.1f} | {mean:.1f} | "
                      f"{g['protocol_mean_return'].min():.1f} | {share_text} | "
                      f"{g['cpu_seconds'].mean() / 60:.1f} | {bar} | {verdict} |")

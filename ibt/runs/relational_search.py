@@ -11,6 +11,10 @@ measure what tests that compare features add at a leaf limit:
    relational ones included, then free pruning (:func:`ibt.refine.relational.refine_relational`,
    cached under ``refine-rel`` with ``source_method`` :data:`METHOD`).
 
+Optionally (``plus_seeds``) Imitation-BT+'s trees at smaller leaf limits join the seed trees: a
+refined 16-leaf tree cut to 10 leaves loses less than a 32-leaf one (LunarLander DQN seed 0:
+the budget trees cut to 10 leaves started the search at a return of about 3).
+
 :func:`relational_search_table` gives one row per run on the anchors' protocol (1,000 final
 episodes of the smallest verified BT, rolled out from its JSON) with the 100-episode final
 evaluation and the BT's relational tests.
@@ -18,6 +22,7 @@ evaluation and the BT's relational tests.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,8 +44,19 @@ BARS: dict[str, dict[str, float]] = {
     "LunarLander-v3": {"bar_max_bt_nodes": 25, "bar_min_return": 200.0, "bar_seeds": 3}}
 
 
-def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int
-                      ) -> Evolution:
+def search_seeds(cfg: Config, task: Task, algo: str, seed: int,
+                 plus_seeds: Sequence[int] = ()) -> list[Any]:
+    """Imitation-BT+S's seed trees (:func:`ibt.runs.search.seed_trees`), then Imitation-BT+'s
+    tree at each leaf limit of ``plus_seeds`` (a refined tree nearer the search's limit loses
+    less when it is cut down to it)."""
+    from ibt.runs.front import plus_run
+
+    return [*seed_trees(cfg, task, algo, seed),
+            *(plus_run(cfg, task, algo, seed, limit).tree for limit in plus_seeds)]
+
+
+def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
+                      plus_seeds: Sequence[int] = ()) -> Evolution:
     """The relational structure search of one run (cached on its seed trees and settings)."""
     from ibt.bt.linear import DEFAULT_WEIGHTS
     from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
@@ -48,7 +64,7 @@ def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_l
 
     spec = get_task(task)
     config = evolve_config(cfg, spec, max_leaves)
-    sources = seed_trees(cfg, spec, algo, seed)
+    sources = search_seeds(cfg, spec, algo, seed, plus_seeds)
     path = expert_path(spec, algo, cfg.experts_dir)
     params = {"task": spec.name, "algo": algo, "seed": seed,
               "sources": [tree_digest(t) for t in sources], "config": config.as_params(),
@@ -77,13 +93,15 @@ class RelationalSearchResult(StructureResult):
 
 
 def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
-                          max_leaves: int) -> RelationalSearchResult:
-    """The relational structure search, then the polish of its winner (each cached)."""
+                          max_leaves: int, plus_seeds: Sequence[int] = ()
+                          ) -> RelationalSearchResult:
+    """The relational structure search, then the polish of its winner (each cached);
+    ``plus_seeds``: leaf limits of Imitation-BT+ trees added to the seed trees."""
     from ibt.refine.relational import refine_relational
     from ibt.refine.relational_structure import winner
 
     spec = get_task(task)
-    evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves)
+    evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds)
     tree = winner(evolution)
     polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
     params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": METHOD,
@@ -99,7 +117,8 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
 
 def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
                           max_leaves: int, episodes: int = 1000,
-                          threshold: float | None = 200.0) -> dict[str, Any]:
+                          threshold: float | None = 200.0, plus_seeds: Sequence[int] = ()
+                          ) -> dict[str, Any]:
     """One run: its smallest verified BT (nodes, relational tests), the 100-episode final
     evaluation of its tree and the anchors' protocol (``episodes`` final episodes of the BT
     from its JSON, the share at or above ``threshold``), and what the run cost."""
@@ -111,7 +130,7 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
     from ibt.runs.search import protocol_evaluation
 
     spec = get_task(task)
-    found = relational_search_run(cfg, spec, algo, seed, max_leaves)
+    found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds)
     tree = found.tree
     sizes = bt_sizes(cfg, spec, tree)
     bt = BehaviorTree.from_dict(sizes["bt"])
@@ -119,7 +138,10 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
     protocol = protocol_evaluation(cfg, spec, bt, episodes, threshold)
     expert = expert_evaluation(cfg, spec, algo)["mean_return"]
     return {"task": spec.name, "expert": algo, "method": METHOD, "seed": seed,
-            "max_leaf_nodes": max_leaves, "tree_leaves": int(tree.get_n_leaves()),
+            "max_leaf_nodes": max_leaves,
+            "seeded_with": " + ".join(["budget trees",
+                                       *(f"Imitation-BT+ at {L} leaves" for L in plus_seeds)]),
+            "tree_leaves": int(tree.get_n_leaves()),
             "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
             "bt_method": sizes["bt_method"], "relational_tests": bt.relational_count,
             "mean_return": evaluation["mean_return"],
@@ -139,18 +161,20 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
 
 
 def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: list[int],
-                            leaves: list[int], threshold: dict[str, float] | None = None
-                            ) -> Any:
+                            leaves: list[int], threshold: dict[str, float] | None = None,
+                            plus_seeds: Sequence[int] = ()) -> Any:
     """:func:`relational_search_row` for every (task, expert), leaf limit and seed."""
     import pandas as pd
     from tqdm import tqdm
 
     threshold = threshold or {}
     runs = [(t, a, L, s) for t, a in experts for L in leaves for s in seeds]
-    rows = [relational_search_row(cfg, t, a, s, L, threshold=threshold.get(t))
+    rows = [relational_search_row(cfg, t, a, s, L, threshold=threshold.get(t),
+                                  plus_seeds=plus_seeds)
             for t, a, L, s in tqdm(runs, desc="imitation-bt+sr", disable=not cfg.progress)]
     return pd.DataFrame(rows)
 
 
-__all__ = ["BARS", "METHOD", "RelationalSearchResult", "evolve_rel_cached", "relational_search_row",
-           "relational_search_run", "relational_search_table"]
+__all__ = ["BARS", "METHOD", "RelationalSearchResult", "evolve_rel_cached",
+           "relational_search_row", "relational_search_run", "relational_search_table",
+           "search_seeds"]
