@@ -368,7 +368,8 @@ def _searched(nodes: list[int], returns: list[float]) -> pd.DataFrame:
         {"task": "LunarLander-v3", "expert": "ppo", "max_leaf_nodes": 10, "seed": s,
          "bt_nodes": n, "relational_tests": 2, "protocol_mean_return": r,
          "share_at_threshold": 0.8, "cpu_seconds": 600.0, "bar_max_bt_nodes": 25,
-         "bar_min_return": 200.0, "bar_seeds": 3}
+         "bar_min_return": 200.0, "bar_strict": False, "bar_min_share": None,
+         "bar_source": "issue 26", "bar_seeds": 3}
         for s, (n, r) in enumerate(zip(nodes, returns, strict=True))])
 
 
@@ -384,6 +385,18 @@ def test_relational_search_verdicts_read_the_bar_in_the_table(tmp_path, nodes, r
     row = next(line for line in text.splitlines() if line.startswith("| LunarLander-v3"))
     assert row.endswith(f"| {verdict} |")
     assert f"| budget trees | {len(nodes)} | {np.mean(nodes):.1f} ({max(nodes)}) |" in row
+
+
+def test_relational_search_against_an_anchor_needs_more_than_its_mean_and_its_share(tmp_path):
+    anchor = {"bar_max_bt_nodes": 45, "bar_min_return": 240.6, "bar_strict": True,
+              "bar_min_share": 0.9, "bar_source": "MENS-DT-RL"}
+    for returns, share, verdict in [([241.0] * 3, 0.92, "met"), ([240.6] * 3, 0.92, "missed"),
+                                    ([245.0] * 3, 0.85, "missed")]:
+        _write(tmp_path, "relational_search", _searched([40] * 3, returns).assign(
+            share_at_threshold=share, **anchor))
+        text = markdown.relational_search_markdown(stats.Results(tmp_path))
+        row = next(line for line in text.splitlines() if line.startswith("| LunarLander-v3"))
+        assert row.endswith(f"| {verdict} |") and "(MENS-DT-RL)" in row
 
 
 def test_deviations_name_the_experts_networks_and_steps(tmp_path):

@@ -506,14 +506,22 @@ def relational_search_markdown(res: Results) -> str | None:
             ["task", "expert", "max_leaf_nodes", "seeded_with"], sort=False):
         mean, nodes = g["protocol_mean_return"].mean(), g["bt_nodes"]
         first = g.iloc[0]
+        share = g["share_at_threshold"]
         bar, verdict = "none", "measured"
         if pd.notna(first.get("bar_max_bt_nodes")):
-            bar = (f"<= {int(first['bar_max_bt_nodes'])} nodes, >= "
-                   f"{first['bar_min_return']:g} over >= {int(first['bar_seeds'])} seeds")
+            strict = bool(first.get("bar_strict", False))
+            need_share = first.get("bar_min_share")
+            bar = (f"{'>' if strict else '>='} {first['bar_min_return']:g} over >= "
+                   f"{int(first['bar_seeds'])} seeds, every BT <= "
+                   f"{int(first['bar_max_bt_nodes'])} nodes"
+                   + (f", >= {100 * need_share:.0f} % >= threshold" if pd.notna(need_share)
+                      else "") + (f" ({first['bar_source']})"
+                                  if isinstance(first.get("bar_source"), str) else ""))
             met = (len(g) >= first["bar_seeds"] and nodes.max() <= first["bar_max_bt_nodes"]
-                   and mean >= first["bar_min_return"])
+                   and (mean > first["bar_min_return"] if strict
+                        else mean >= first["bar_min_return"])
+                   and (pd.isna(need_share) or share.mean() >= need_share))
             verdict = "met" if met else "missed"
-        share = g["share_at_threshold"]
         share_text = f"{100 * share.mean():.1f} %" if share.notna().any() else "n/a"
         lines.append(f"| {task} | {expert} | {int(limit)} | {seeded} | {len(g)} | "
                      f"{nodes.mean():.1f} "
