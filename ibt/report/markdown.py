@@ -647,7 +647,8 @@ def readme_block(res: Results) -> str:
           if (structure := structure_markdown(res)) is not None else []),
         *(["With tests that compare features: **Imitation-BT+SR** (notebook 07) runs the same "
            "search allowed to test `w1 * x_i + w2 * x_j <= t`; its BTs on the same protocol, "
-           "against issue 26's bar (the relational points on the front: "
+           "against the small-BT bar of issues 22 and 26 at 12 leaves or fewer and the "
+           "published anchor at its own size above (the relational points on the front: "
            "[figures/front_relational.png](figures/front_relational.png)):", "",
            searched, ""]
           if (searched := relational_search_markdown(res)) is not None else []),
