@@ -58,7 +58,7 @@ def bar_of(task: str, max_leaves: int) -> dict[str, Any]:
         return {**{k: v for k, v in small.items() if k != "up_to_leaves"},
                 "bar_seeds": BAR_SEEDS}
     anchor = next((a for a in ANCHORS if a.task == task and a.max_bt_nodes
-                   and max_leaves <= a.leaves), None)
+                   and a.leaves is not None and max_leaves <= a.leaves), None)
     if anchor is None:
         return dict.fromkeys(("bar_max_bt_nodes", "bar_min_return", "bar_strict",
                               "bar_min_share", "bar_source", "bar_seeds"))
