@@ -102,14 +102,19 @@ def test_json_round_trips_and_names_the_rule():
 
 
 def test_axis_aligned_documents_are_unchanged():
-    """Every committed BT reads and writes back byte for byte (its digest is the same)."""
+    """Every committed BT reads and writes back byte for byte (its digest is the same); the
+    axis-aligned ones (all but Imitation-BT+SR's) still say nothing of forms."""
     paths = sorted(DATA_DIR.glob("trees/*/*/*.json"))
     assert paths
+    relational = {p for p in paths if p.stem == "imitation-bt-plus-sr"}
     for path in paths:
         bt = load_json(path)
-        assert bt.relational_count == 0
         assert bt.to_json() + "\n" == path.read_text(), path
+        if path in relational:
+            continue
+        assert bt.relational_count == 0, path
         assert "form" not in bt.to_dict()["tick_rule"]
+    assert relational and all(load_json(p).relational_count for p in relational)
 
 
 def _with_condition(condition: dict) -> str:

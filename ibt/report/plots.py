@@ -43,13 +43,15 @@ METHOD_COLORS = {"bc": GREY, "dagger": "#56B4E9", "viper": "#0072B2",
                  "imitation-bt+s": "#000000", "decision-list": "#CC79A7", "bt-espresso": "#F0E442",
                  "re-bt-espresso": "#009E73",
                  # relational tests (issue 26): never on a panel with the two synthesisers above
-                 "imitation-bt+rel+": "#CC79A7", "imitation-bt+sr": "#009E73"}
+                 "imitation-bt+rel+": "#CC79A7", "imitation-bt+sr": "#009E73",
+                 "imitation-bt+sr*": "#56B4E9"}
 #: the two baselines are synthesised from the BC tree: hatched like it is their source
 METHOD_HATCHES = {"bt-espresso": "//", "re-bt-espresso": "\\\\"}
 METHOD_LABELS = {"bc": "BC", "dagger": "DAgger", "viper": "VIPER", "imitation-bt": "Imitation-BT",
                  "imitation-bt+": "Imitation-BT+", "imitation-bt+s": "Imitation-BT+S",
-                 "imitation-bt+rel+": "Imitation-BT+ (relational)",
-                 "imitation-bt+sr": "Imitation-BT+SR (relational)",
+                 "imitation-bt+rel+": "Imitation-BT+rel",
+                 "imitation-bt+sr": "Imitation-BT+SR",
+                 "imitation-bt+sr*": "Imitation-BT+SR*",
                  "decision-list": "decision list",
                  "bt-espresso": "BT-Espresso", "re-bt-espresso": "RE:BT-Espresso"}
 BASELINE_NOTE = ("BT-Espresso and RE:BT-Espresso are synthesised from the BC tree and decide "
