@@ -5,16 +5,23 @@ tree over only the columns it tests, and the expert labels the observed part of 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
 import ibt
 from ibt.bt.linear import FeatureMap
-from ibt.distill.relational import RelationalTreeClassifier
+from ibt.distill.relational import (
+    RelationalTreeClassifier,
+    candidate_map,
+    one_significant,
+    scaled_candidate_map,
+)
 from ibt.refine.relational import augmented_task
 from ibt.refine.relational_structure import compact, evolve_relational, search_map, widen, winner
 from ibt.refine.tree_arrays import TreeArrays
+from ibt.runs.relational_search import search_config
 from ibt.tasks.settings import EvolveConfig
 
 
@@ -79,3 +86,35 @@ def test_a_small_relational_search_is_deterministic_and_its_winner_relational():
     assert isinstance(tree, RelationalTreeClassifier)
     states = task.sample_features(500, np.random.default_rng(2))
     assert np.array_equal(tree.predict(states), first.best.predict(fmap.augment(states)))
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(1e-6, 1e6) | st.floats(-1e6, -1e-6))
+def test_one_significant_digit_stays_near_and_readable(value):
+    rounded = one_significant(value)
+    assert np.sign(rounded) == np.sign(value)
+    assert abs(rounded - value) <= 0.5 * 10 ** np.floor(np.log10(abs(value))) * (1 + 1e-9)
+    assert len(f"{abs(rounded):.0e}".split("e")[0]) == 1  # one digit before the exponent
+
+
+def test_scaled_candidates_relate_features_of_different_scales():
+    rng = np.random.default_rng(0)
+    x = np.c_[rng.normal(0, 0.3, 2000), rng.normal(0, 0.02, 2000), rng.integers(2, size=2000),
+              rng.normal(0, 0.3, 2000)]
+    fmap = scaled_candidate_map(x)
+    assert {f.i for f in fmap.forms} | {f.j for f in fmap.forms} == {0, 1, 3}  # no binary flag
+    weights_01 = {(f.w1, f.w2) for f in fmap.forms if (f.i, f.j) == (0, 1)}
+    assert (1.0, 20.0) in weights_01 and (1.0, -20.0) in weights_01  # spreads 0.3 / 0.02 = 15
+    fixed = candidate_map(x)
+    def weights_of(m: FeatureMap, pair: tuple[int, int]) -> set[tuple[float, float]]:
+        return {(f.w1, f.w2) for f in m.forms if (f.i, f.j) == pair}
+    assert weights_of(fmap, (0, 3)) == weights_of(fixed, (0, 3))  # one scale: fixed weights
+
+
+def test_a_search_budget_below_one_generation_is_refused():
+    cfg = ibt.config("paper")
+    task = ibt.get_task("LunarLander-v3")
+    assert search_config(cfg, task, 9, 40_000).episodes == 40_000
+    assert search_config(cfg, task, 9).episodes == task.evolve.episodes
+    with pytest.raises(ValueError, match="below one generation"):
+        search_config(cfg, task, 9, 1)

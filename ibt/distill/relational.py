@@ -107,14 +107,45 @@ class RelationalSettings:
                 "max_bins": self.max_bins}
 
 
+def _non_binary(x: np.ndarray) -> list[int]:
+    """The features that take more than two values in ``x`` (a binary flag, such as a leg's
+    ground contact, gains nothing from a weighted sum)."""
+    return [i for i in range(x.shape[1]) if len(np.unique(x[:, i][:64_000])) > 2]
+
+
 def candidate_map(x: np.ndarray, weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS
                   ) -> FeatureMap:
-    """Every pair of the features that take more than two values in ``x`` (a binary flag,
-    such as a leg's ground contact, gains nothing from a weighted sum), with every weight
-    pair."""
+    """Every pair of the non-binary features of ``x`` with every weight pair."""
     x = np.asarray(x)
-    features = [i for i in range(x.shape[1]) if len(np.unique(x[:, i][:64_000])) > 2]
-    return FeatureMap.pairs(x.shape[1], weights, features)
+    return FeatureMap.pairs(x.shape[1], weights, _non_binary(x))
+
+
+def one_significant(value: float) -> float:
+    """``value`` rounded to one significant digit (a weight a reader can say: 0.07, 3, 20)."""
+    if value == 0 or not np.isfinite(value):
+        raise ValueError(f"a weight must be finite and non-zero, got {value!r}")
+    return float(f"{value:.0e}")
+
+
+def scaled_candidate_map(x: np.ndarray,
+                         weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS) -> FeatureMap:
+    """:func:`candidate_map` with each pair's second weight scaled by the ratio of the two
+    features' spreads (standard deviations in ``x``), to one significant digit: fixed weights
+    of 0.5 to 2 cannot relate features whose scales differ (MountainCar's position spreads
+    about 13 times as far as its velocity); where the ratio rounds to 1 the candidates are
+    :func:`candidate_map`'s. A feature that does not vary is left out."""
+    x = np.asarray(x, dtype=np.float64)
+    spread = x.std(axis=0)
+    features = [i for i in _non_binary(x) if spread[i] > 0]
+    forms: list[LinearForm] = []
+    for a, i in enumerate(features):
+        for j in features[a + 1:]:
+            ratio = one_significant(spread[i] / spread[j])
+            for w1, w2 in weights:
+                form = LinearForm(i, j, w1, one_significant(w2 * ratio))
+                if form not in forms:
+                    forms.append(form)
+    return FeatureMap(x.shape[1], tuple(forms))
 
 
 @dataclass
@@ -369,4 +400,4 @@ def compile_tree(tree: Any) -> Any:
 
 __all__ = ["DEFAULT_MARGIN", "LinearForm", "RelationalSettings", "RelationalTreeClassifier",
            "as_relational", "candidate_map", "compile_tree", "feature_map_of",
-           "fit_relational_tree", "relational_tests"]
+           "fit_relational_tree", "one_significant", "relational_tests", "scaled_candidate_map"]

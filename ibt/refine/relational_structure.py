@@ -24,7 +24,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from ibt.bt.linear import DEFAULT_WEIGHTS, FeatureMap
-from ibt.distill.relational import RelationalTreeClassifier, as_relational, candidate_map
+from ibt.distill.relational import (
+    RelationalTreeClassifier,
+    as_relational,
+    candidate_map,
+    scaled_candidate_map,
+)
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout
 from ibt.refine.relational import FEATURE_MAP_KEY, augmented_task
 from ibt.refine.structure import Evolution, evolve
@@ -61,24 +66,27 @@ def compact(tree: TreeArrays, feature_map: FeatureMap) -> tuple[TreeArrays, Feat
 
 
 def search_map(task: Task, source: TreeArrays,
-               weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS) -> FeatureMap:
+               weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS,
+               scaled: bool = False) -> FeatureMap:
     """The candidate derived columns: every pair of the features that take more than two
-    values on the states ``source`` visits, with every weight pair."""
+    values on the states ``source`` visits, with every weight pair (``scaled``: the second
+    weight scaled by the pair's ratio of spreads on those states,
+    :func:`ibt.distill.relational.scaled_candidate_map`)."""
     tree = source.to_sklearn()
     seeds = [CANDIDATE_SEED_BASE + i for i in range(CANDIDATE_EPISODES)]
     result = rollout(task, lambda obs: tree.predict(task.features(obs)), seeds,
                      n_envs=CANDIDATE_EPISODES, collect=True)
     states = np.concatenate([task.features(o) for o in result.obs])
-    return candidate_map(states, weights)
+    return (scaled_candidate_map if scaled else candidate_map)(states, weights)
 
 
 def evolve_relational(sources: list[TreeArrays], task: Task, config: EvolveConfig,
                       seed: int = 0, *, expert: object | None = None,
                       weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS,
-                      progress: bool = True) -> Evolution:
+                      scaled_weights: bool = False, progress: bool = True) -> Evolution:
     """:func:`ibt.refine.structure.evolve` over the observed features and the candidate
     relational columns; the record's ``config`` holds the candidate map (plain data)."""
-    fmap = search_map(task, sources[0], weights)
+    fmap = search_map(task, sources[0], weights, scaled_weights)
     wide = augmented_task(task, fmap)
     record = evolve([widen(s, fmap.width) for s in sources], wide, config, seed,
                     expert=expert, progress=progress)

@@ -489,6 +489,20 @@ def _ablation(res: Results) -> str | None:
         ablation_markdown(res))
 
 
+def _search_setting(rows: pd.DataFrame) -> pd.Series:
+    """What a run of Imitation-BT+SR was seeded with and, where recorded, its search budget
+    and candidate weights (rows of different settings are different runs, never averaged)."""
+    text = (rows["seeded_with"] if "seeded_with" in rows
+            else pd.Series("budget trees", index=rows.index)).astype(str)
+    if "search_budget" in rows:
+        text = text + rows["search_budget"].map(
+            lambda n: f"; {int(n):,} search episodes" if pd.notna(n) else "")
+    if "candidate_weights" in rows:
+        text = text + rows["candidate_weights"].map(
+            lambda w: f"; weights {w}" if isinstance(w, str) and w != "fixed" else "")
+    return text
+
+
 def relational_search_markdown(res: Results) -> str | None:
     """Imitation-BT+SR on the anchors' protocol (``relational_search.csv``): per task, expert
     and leaf limit, the committed BTs' 1,000-episode means over seeds against the bar written
@@ -497,13 +511,13 @@ def relational_search_markdown(res: Results) -> str | None:
     rows = res.table("relational_search")
     if rows is None or rows.empty:
         return None
-    if "seeded_with" not in rows:
-        rows = rows.assign(seeded_with="budget trees")
-    lines = ["| task | expert | leaf limit | seed trees | seeds | BT nodes (max) | relational "
-             "tests | mean return (1,000 episodes) | worst seed | share >= threshold | CPU-min "
-             "a run | bar | verdict |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = rows.assign(setting=_search_setting(rows))
+    lines = ["| task | expert | leaf limit | seed trees and search | seeds | BT nodes (max) | "
+             "relational tests | mean return (1,000 episodes) | worst seed | share >= threshold "
+             "| CPU-min a run | bar | verdict |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for (task, expert, limit, seeded), g in rows.groupby(
-            ["task", "expert", "max_leaf_nodes", "seeded_with"], sort=False):
+            ["task", "expert", "max_leaf_nodes", "setting"], sort=False):
         mean, nodes = g["protocol_mean_return"].mean(), g["bt_nodes"]
         first = g.iloc[0]
         share = g["share_at_threshold"]

@@ -23,7 +23,7 @@ evaluation and the BT's relational tests.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from ibt.experts.expert import expert_path, load_expert
@@ -34,6 +34,7 @@ from ibt.runs.cache import load_or_compute
 from ibt.runs.grid import tree_digest
 from ibt.runs.search import StructureResult, evolve_config, polish_config, seed_trees
 from ibt.tasks.catalogue import get_task
+from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
 
 METHOD = "imitation-bt+sr"  # structure search with relational tests, polished
@@ -78,26 +79,44 @@ def search_seeds(cfg: Config, task: Task, algo: str, seed: int,
             *(plus_run(cfg, task, algo, seed, limit).tree for limit in plus_seeds)]
 
 
+def search_config(cfg: Config, task: Task, max_leaves: int,
+                  search_episodes: int | None = None) -> EvolveConfig:
+    """Imitation-BT+S's search settings at ``max_leaves``, with the search's episode budget
+    ``search_episodes`` where given (the task's budget otherwise, and always under ``smoke``)."""
+    config = evolve_config(cfg, task, max_leaves)
+    if search_episodes is not None and cfg.profile != "smoke":
+        if search_episodes < config.generation_episodes:
+            raise ValueError(f"a search budget of {search_episodes} episodes is below one "
+                             f"generation ({config.generation_episodes}); give more")
+        config = replace(config, episodes=int(search_episodes))
+    return config
+
+
 def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
-                      plus_seeds: Sequence[int] = ()) -> Evolution:
-    """The relational structure search of one run (cached on its seed trees and settings)."""
+                      plus_seeds: Sequence[int] = (), search_episodes: int | None = None,
+                      scaled_weights: bool = False) -> Evolution:
+    """The relational structure search of one run (cached on its seed trees and settings);
+    ``search_episodes``: the search's budget where not the task's; ``scaled_weights``: the
+    candidates' weights scaled to each pair's spreads."""
     from ibt.bt.linear import DEFAULT_WEIGHTS
     from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
     from ibt.refine.tree_arrays import TreeArrays
 
     spec = get_task(task)
-    config = evolve_config(cfg, spec, max_leaves)
+    config = search_config(cfg, spec, max_leaves, search_episodes)
     sources = search_seeds(cfg, spec, algo, seed, plus_seeds)
     path = expert_path(spec, algo, cfg.experts_dir)
     params = {"task": spec.name, "algo": algo, "seed": seed,
               "sources": [tree_digest(t) for t in sources], "config": config.as_params(),
               "weights": [list(w) for w in DEFAULT_WEIGHTS],
-              "candidate_episodes": CANDIDATE_EPISODES}
+              "candidate_episodes": CANDIDATE_EPISODES,
+              **({"weight_scale": "spread"} if scaled_weights else {})}
 
     def compute() -> Evolution:
         expert = load_expert(spec, algo, path)
         return evolve_relational([TreeArrays.from_sklearn(t) for t in sources], spec, config,
-                                 seed, expert=expert, progress=cfg.progress)
+                                 seed, expert=expert, scaled_weights=scaled_weights,
+                                 progress=cfg.progress)
 
     return load_or_compute("evolve-rel", params, compute, cache_dir=cfg.cache_dir,
                            codec="evolution", refresh=cfg.refresh)
@@ -116,15 +135,19 @@ class RelationalSearchResult(StructureResult):
 
 
 def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
-                          max_leaves: int, plus_seeds: Sequence[int] = ()
+                          max_leaves: int, plus_seeds: Sequence[int] = (),
+                          search_episodes: int | None = None, scaled_weights: bool = False
                           ) -> RelationalSearchResult:
     """The relational structure search, then the polish of its winner (each cached);
-    ``plus_seeds``: leaf limits of Imitation-BT+ trees added to the seed trees."""
+    ``plus_seeds``: leaf limits of Imitation-BT+ trees added to the seed trees;
+    ``search_episodes``: the search's budget where not the task's (the polish is the same);
+    ``scaled_weights``: candidate weights scaled to each pair's spreads."""
     from ibt.refine.relational import refine_relational
     from ibt.refine.relational_structure import winner
 
     spec = get_task(task)
-    evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds)
+    evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds,
+                                  search_episodes, scaled_weights)
     tree = winner(evolution)
     polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
     params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": METHOD,
@@ -140,7 +163,8 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
 
 def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
                           max_leaves: int, episodes: int = 1000,
-                          threshold: float | None = 200.0, plus_seeds: Sequence[int] = ()
+                          threshold: float | None = 200.0, plus_seeds: Sequence[int] = (),
+                          search_episodes: int | None = None, scaled_weights: bool = False
                           ) -> dict[str, Any]:
     """One run: its smallest verified BT (nodes, relational tests), the 100-episode final
     evaluation of its tree and the anchors' protocol (``episodes`` final episodes of the BT
@@ -153,7 +177,8 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
     from ibt.runs.search import protocol_evaluation
 
     spec = get_task(task)
-    found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds)
+    found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds,
+                                  search_episodes, scaled_weights)
     tree = found.tree
     sizes = bt_sizes(cfg, spec, tree)
     bt = BehaviorTree.from_dict(sizes["bt"])
@@ -164,6 +189,8 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
             "max_leaf_nodes": max_leaves,
             "seeded_with": " + ".join(["budget trees",
                                        *(f"Imitation-BT+ at {L} leaves" for L in plus_seeds)]),
+            "search_budget": search_config(cfg, spec, max_leaves, search_episodes).episodes,
+            "candidate_weights": "scaled to spreads" if scaled_weights else "fixed",
             "tree_leaves": int(tree.get_n_leaves()),
             "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
             "bt_method": sizes["bt_method"], "relational_tests": bt.relational_count,
@@ -184,7 +211,8 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
 
 def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: list[int],
                             leaves: list[int], threshold: dict[str, float] | None = None,
-                            plus_seeds: Sequence[int] = ()) -> Any:
+                            plus_seeds: Sequence[int] = (), search_episodes: int | None = None,
+                            scaled_weights: bool = False) -> Any:
     """:func:`relational_search_row` for every (task, expert), leaf limit and seed."""
     import pandas as pd
     from tqdm import tqdm
@@ -192,11 +220,12 @@ def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: 
     threshold = threshold or {}
     runs = [(t, a, L, s) for t, a in experts for L in leaves for s in seeds]
     rows = [relational_search_row(cfg, t, a, s, L, threshold=threshold.get(t),
-                                  plus_seeds=plus_seeds)
+                                  plus_seeds=plus_seeds, search_episodes=search_episodes,
+                                  scaled_weights=scaled_weights)
             for t, a, L, s in tqdm(runs, desc="imitation-bt+sr", disable=not cfg.progress)]
     return pd.DataFrame(rows)
 
 
 __all__ = ["METHOD", "SMALL_BARS", "RelationalSearchResult", "bar_of", "evolve_rel_cached",
            "relational_search_row", "relational_search_run", "relational_search_table",
-           "search_seeds"]
+           "search_config", "search_seeds"]
