@@ -28,11 +28,16 @@ from typing import Any
 
 from ibt.experts.expert import expert_path, load_expert
 from ibt.profiles import Config
-from ibt.refine.by_return import Refinement
 from ibt.refine.structure import Evolution
 from ibt.runs.cache import load_or_compute
 from ibt.runs.grid import tree_digest
-from ibt.runs.search import StructureResult, evolve_config, polish_config, seed_trees
+from ibt.runs.search import (
+    StructureResult,
+    evolve_config,
+    polish_cached,
+    polish_config,
+    seed_trees,
+)
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -142,23 +147,14 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
     ``plus_seeds``: leaf limits of Imitation-BT+ trees added to the seed trees;
     ``search_episodes``: the search's budget where not the task's (the polish is the same);
     ``scaled_weights``: candidate weights scaled to each pair's spreads."""
-    from ibt.refine.relational import refine_relational
     from ibt.refine.relational_structure import winner
 
     spec = get_task(task)
     evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds,
                                   search_episodes, scaled_weights)
-    tree = winner(evolution)
     polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
-    params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": METHOD,
-              "tree": tree_digest(tree), "config": polish.as_params()}
-
-    def compute() -> Refinement:
-        return refine_relational(tree, spec, polish, seed, progress=cfg.progress)
-
-    refined = load_or_compute("refine-rel", params, compute, cache_dir=cfg.cache_dir,
-                              codec="refinement", refresh=cfg.refresh)
-    return RelationalSearchResult(evolution, refined)
+    return RelationalSearchResult(evolution, polish_cached(cfg, spec, algo, seed, METHOD,
+                                                           winner(evolution), polish))
 
 
 def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,

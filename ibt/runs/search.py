@@ -36,8 +36,8 @@ from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig, RefineConfig
 from ibt.tasks.task import Task
 
-__all__ = ["STRUCTURE", "evolve_cached", "expert_help_table", "protocol_evaluation",
-           "structure_run"]
+__all__ = ["STRUCTURE", "evolve_cached", "expert_help_table", "polish_cached",
+           "protocol_evaluation", "structure_run"]
 
 
 def evolve_config(cfg: Config, task: Task, max_leaves: int, use_expert: bool = True
@@ -121,17 +121,29 @@ def structure_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leave
     the ablation that searches on reward alone."""
     spec = get_task(task)
     evolution = evolve_cached(cfg, spec, algo, seed, max_leaves, use_expert)
-    tree = evolution.best_tree
     polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves, use_expert))
-    params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": STRUCTURE,
+    return StructureResult(evolution, polish_cached(cfg, spec, algo, seed, STRUCTURE,
+                                                    evolution.best_tree, polish))
+
+
+def polish_cached(cfg: Config, task: Task, algo: str, seed: int, source_method: str,
+                  tree: Any, polish: RefineConfig) -> Refinement:
+    """A search winner's polish (cached under ``refine``, or ``refine-rel`` for a relational
+    tree, keyed on the method it came from, the tree and the polish settings)."""
+    from ibt.distill.relational import RelationalTreeClassifier
+    from ibt.refine.relational import refine_relational
+
+    relational = isinstance(tree, RelationalTreeClassifier)
+    params = {"task": task.name, "algo": algo, "seed": seed, "source_method": source_method,
               "tree": tree_digest(tree), "config": polish.as_params()}
 
     def compute() -> Refinement:
-        return refine(tree, spec, polish, seed, progress=cfg.progress)
+        if relational:
+            return refine_relational(tree, task, polish, seed, progress=cfg.progress)
+        return refine(tree, task, polish, seed, progress=cfg.progress)
 
-    refined = load_or_compute("refine", params, compute, cache_dir=cfg.cache_dir,
-                              codec="refinement", refresh=cfg.refresh)
-    return StructureResult(evolution, refined)
+    return load_or_compute("refine-rel" if relational else "refine", params, compute,
+                           cache_dir=cfg.cache_dir, codec="refinement", refresh=cfg.refresh)
 
 
 def protocol_evaluation(cfg: Config, task: str | Task, bt: BehaviorTree, episodes: int = 1000,
