@@ -187,6 +187,9 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
                                        *(f"Imitation-BT+ at {L} leaves" for L in plus_seeds)]),
             "search_budget": search_config(cfg, spec, max_leaves, search_episodes).episodes,
             "candidate_weights": "scaled to spreads" if scaled_weights else "fixed",
+            "default_setting": (not plus_seeds and not scaled_weights
+                                and search_config(cfg, spec, max_leaves, search_episodes).episodes
+                                == search_config(cfg, spec, max_leaves).episodes),
             "tree_leaves": int(tree.get_n_leaves()),
             "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
             "bt_method": sizes["bt_method"], "relational_tests": bt.relational_count,
