@@ -79,7 +79,7 @@ CODE_VERSIONS: dict[str, int] = {
     "box-eval": 1,  # evaluate_cached: verified BTs of a command tree, final return from JSON
     # relational tests (issue 26): ibt.runs.relational
     "distill-rel": 1,  # distill_rel: the loop as imitation-bt+rel (the relational learner)
-    "refine-rel": 1,  # refine_rel: ibt.refine.relational.refine_relational of such a tree
+    "refine-rel": 1,  # ibt.refine.relational.refine_relational of a relational tree
     # structure search with relational tests (issues 22 and 26): ibt.runs.relational_search
     "evolve-rel": 1,  # evolve_rel_cached: ibt.refine.relational_structure.evolve_relational
 }

@@ -128,14 +128,29 @@ def refine_cached(cfg: Config, task: str | Task, algo: str, seed: int, source_me
     spec = get_task(task)
     config = config or refine_config(cfg, spec, max_leaves=max_leaves)
     tree = source_run(cfg, spec, algo, source_method, seed, None).best_tree
-    params = {"task": spec.name, "algo": algo, "seed": seed, "source_method": source_method,
+    return refinement_cached(cfg, spec, algo, seed, source_method, tree, config)
+
+
+def refinement_cached(cfg: Config, task: Task, algo: str, seed: int, source_method: str,
+                      tree: Any, config: RefineConfig) -> Refinement:
+    """``tree`` refined by return (:func:`ibt.refine.by_return.refine`, or
+    :func:`ibt.refine.relational.refine_relational` for a relational tree), cached under
+    ``refine`` or ``refine-rel`` on the method it came from, the tree and the settings: the
+    one home of a cached refinement (Imitation-BT+, the searches' polish, the recommender)."""
+    from ibt.distill.relational import RelationalTreeClassifier
+    from ibt.refine.relational import refine_relational
+
+    relational = isinstance(tree, RelationalTreeClassifier)
+    params = {"task": task.name, "algo": algo, "seed": seed, "source_method": source_method,
               "tree": tree_digest(tree), "config": config.as_params()}
 
     def compute() -> Refinement:
-        return refine(tree, spec, config, seed, progress=cfg.progress)
+        if relational:
+            return refine_relational(tree, task, config, seed, progress=cfg.progress)
+        return refine(tree, task, config, seed, progress=cfg.progress)
 
-    return load_or_compute("refine", params, compute, cache_dir=cfg.cache_dir,
-                           codec="refinement", refresh=cfg.refresh)
+    return load_or_compute("refine-rel" if relational else "refine", params, compute,
+                           cache_dir=cfg.cache_dir, codec="refinement", refresh=cfg.refresh)
 
 
 @dataclass(frozen=True)

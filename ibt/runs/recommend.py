@@ -221,26 +221,16 @@ def distil(cfg: Config, task: Task, algo: str, checkpoint: Path, leaves: int, se
 
 
 def refined(cfg: Config, task: Task, algo: str, tree: Any, seed: int, budget: Budget) -> Any:
-    """The tree refined by return (cached with the front's key; a relational tree by
-    :func:`ibt.runs.relational.refine_rel`)."""
+    """The tree refined by return (cached with the front's key,
+    :func:`ibt.runs.front.refinement_cached`; relational trees stay relational)."""
     from ibt.distill.relational import RelationalTreeClassifier
-    from ibt.refine.by_return import refine
-    from ibt.runs.grid import tree_digest
+    from ibt.refine.relational import best_tree
+    from ibt.runs.front import refinement_cached
+    from ibt.runs.relational import METHOD as RELATIONAL
 
-    config = _refine_config(cfg, task, budget)
-    if isinstance(tree, RelationalTreeClassifier):
-        from ibt.refine.relational import best_tree
-        from ibt.runs.relational import refine_rel
-
-        return best_tree(refine_rel(cfg, task, algo, tree, seed, config))
-    params = {"task": task.name, "algo": algo, "seed": seed, "source_method": SOURCE_METHOD,
-              "tree": tree_digest(tree), "config": config.as_params()}
-
-    def compute() -> Any:
-        return refine(tree, task, config, seed, progress=cfg.progress)
-
-    return load_or_compute("refine", params, compute, cache_dir=cfg.cache_dir,
-                           codec="refinement", refresh=cfg.refresh).best_tree
+    source = RELATIONAL if isinstance(tree, RelationalTreeClassifier) else SOURCE_METHOD
+    return best_tree(refinement_cached(cfg, task, algo, seed, source, tree,
+                                       _refine_config(cfg, task, budget)))
 
 
 def synthesised(cfg: Config, task: Task, algo: str, tree: Any, seed: int) -> dict[str, Any]:

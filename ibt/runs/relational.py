@@ -63,32 +63,16 @@ def distill_rel(cfg: Config, task: Task, algo: str, seed: int, leaves: int | Non
                            codec="distillation", refresh=cfg.refresh)
 
 
-def refine_rel(cfg: Config, task: Task, algo: str, tree: Any, seed: int,
-               config: RefineConfig) -> Refinement:
-    """A relational tree refined by return (cached on the tree's digest and the budget)."""
-    from ibt.refine.relational import refine_relational
-    from ibt.runs.grid import tree_digest
-
-    params = {"task": task.name, "algo": algo, "seed": seed, "source_method": METHOD,
-              "tree": tree_digest(tree), "config": config.as_params()}
-
-    def compute() -> Refinement:
-        return refine_relational(tree, task, config, seed, progress=cfg.progress)
-
-    return load_or_compute("refine-rel", params, compute, cache_dir=cfg.cache_dir,
-                           codec="refinement", refresh=cfg.refresh)
-
-
 def refined_tree(cfg: Config, task: Task, algo: str, seed: int, leaves: int | None,
                  config: RefineConfig | None = None) -> tuple[Any, Refinement]:
     """``imitation-bt+rel+``: the distilled relational tree at ``leaves``, refined by return
     with the task's budget (:func:`ibt.runs.front.refine_config`, pruned to ``leaves``)."""
     from ibt.refine.relational import best_tree
-    from ibt.runs.front import refine_config
+    from ibt.runs.front import refine_config, refinement_cached
 
     tree = distill_rel(cfg, task, algo, seed, leaves).best_tree
     config = config or refine_config(cfg, task, max_leaves=leaves)
-    record = refine_rel(cfg, task, algo, tree, seed, config)
+    record = refinement_cached(cfg, task, algo, seed, METHOD, tree, config)
     return best_tree(record), record
 
 

@@ -34,7 +34,6 @@ from ibt.runs.grid import tree_digest
 from ibt.runs.search import (
     StructureResult,
     evolve_config,
-    polish_cached,
     polish_config,
     seed_trees,
 )
@@ -148,13 +147,14 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
     ``search_episodes``: the search's budget where not the task's (the polish is the same);
     ``scaled_weights``: candidate weights scaled to each pair's spreads."""
     from ibt.refine.relational_structure import winner
+    from ibt.runs.front import refinement_cached
 
     spec = get_task(task)
     evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds,
                                   search_episodes, scaled_weights)
     polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
-    return RelationalSearchResult(evolution, polish_cached(cfg, spec, algo, seed, METHOD,
-                                                           winner(evolution), polish))
+    return RelationalSearchResult(evolution, refinement_cached(cfg, spec, algo, seed, METHOD,
+                                                               winner(evolution), polish))
 
 
 def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,

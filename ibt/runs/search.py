@@ -27,17 +27,17 @@ from ibt.bt.model import BehaviorTree
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.experts.expert import expert_path, load_expert
 from ibt.profiles import Config
-from ibt.refine.by_return import Refinement, refine
+from ibt.refine.by_return import Refinement
 from ibt.refine.structure import Evolution, evolve
 from ibt.runs.cache import load_or_compute
-from ibt.runs.front import STRUCTURE, plus_run, ranked_sources
+from ibt.runs.front import STRUCTURE, plus_run, ranked_sources, refinement_cached
 from ibt.runs.grid import _bt_digest, tree_digest
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig, RefineConfig
 from ibt.tasks.task import Task
 
-__all__ = ["STRUCTURE", "evolve_cached", "expert_help_table", "polish_cached",
-           "protocol_evaluation", "structure_run"]
+__all__ = ["STRUCTURE", "evolve_cached", "expert_help_table", "protocol_evaluation",
+           "structure_run"]
 
 
 def evolve_config(cfg: Config, task: Task, max_leaves: int, use_expert: bool = True
@@ -122,28 +122,8 @@ def structure_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leave
     spec = get_task(task)
     evolution = evolve_cached(cfg, spec, algo, seed, max_leaves, use_expert)
     polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves, use_expert))
-    return StructureResult(evolution, polish_cached(cfg, spec, algo, seed, STRUCTURE,
-                                                    evolution.best_tree, polish))
-
-
-def polish_cached(cfg: Config, task: Task, algo: str, seed: int, source_method: str,
-                  tree: Any, polish: RefineConfig) -> Refinement:
-    """A search winner's polish (cached under ``refine``, or ``refine-rel`` for a relational
-    tree, keyed on the method it came from, the tree and the polish settings)."""
-    from ibt.distill.relational import RelationalTreeClassifier
-    from ibt.refine.relational import refine_relational
-
-    relational = isinstance(tree, RelationalTreeClassifier)
-    params = {"task": task.name, "algo": algo, "seed": seed, "source_method": source_method,
-              "tree": tree_digest(tree), "config": polish.as_params()}
-
-    def compute() -> Refinement:
-        if relational:
-            return refine_relational(tree, task, polish, seed, progress=cfg.progress)
-        return refine(tree, task, polish, seed, progress=cfg.progress)
-
-    return load_or_compute("refine-rel" if relational else "refine", params, compute,
-                           cache_dir=cfg.cache_dir, codec="refinement", refresh=cfg.refresh)
+    return StructureResult(evolution, refinement_cached(cfg, spec, algo, seed, STRUCTURE,
+                                                        evolution.best_tree, polish))
 
 
 def protocol_evaluation(cfg: Config, task: str | Task, bt: BehaviorTree, episodes: int = 1000,
