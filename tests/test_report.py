@@ -454,3 +454,20 @@ def test_mountaincar_front_without_mountaincar_runs_is_not_measured(tmp_path):
     _write(tmp_path, "bt_size_front", front.assign(task="CartPole-v1"))
     claim = claims.claim_mountaincar(stats.Results(tmp_path))
     assert claim.verdict == NOT_MEASURED and "no MountainCar runs" in claim.reason
+
+
+def test_relational_search_keeps_runs_of_different_settings_apart(tmp_path):
+    """Three seeds of the task's budget and three of a larger one are two rows, never one
+    mean of six; a variant's setting is named."""
+    base = _searched([21, 25, 23], [210.0, 195.0, 205.0]).assign(
+        search_budget=24_000, candidate_weights="fixed")
+    larger = _searched([21, 25, 23], [150.0, 155.0, 160.0]).assign(
+        search_budget=40_000, candidate_weights="scaled to spreads")
+    _write(tmp_path, "relational_search", pd.concat([base, larger], ignore_index=True))
+    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    rows = [line for line in text.splitlines() if line.startswith("| LunarLander-v3")]
+    assert len(rows) == 2
+    assert "| budget trees; 24,000 search episodes | 3 |" in rows[0]
+    assert rows[0].endswith("| met |")
+    assert ("| budget trees; 40,000 search episodes; weights scaled to spreads | 3 |"
+            in rows[1]) and rows[1].endswith("| missed |")
