@@ -31,12 +31,7 @@ from ibt.profiles import Config
 from ibt.refine.structure import Evolution
 from ibt.runs.cache import load_or_compute
 from ibt.runs.grid import tree_digest
-from ibt.runs.search import (
-    StructureResult,
-    evolve_config,
-    polish_config,
-    seed_trees,
-)
+from ibt.runs.search import StructureResult, evolve_config, polish_config, seed_trees
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -175,6 +170,7 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
     spec = get_task(task)
     found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds,
                                   search_episodes, scaled_weights)
+    budget = search_config(cfg, spec, max_leaves, search_episodes).episodes
     tree = found.tree
     sizes = bt_sizes(cfg, spec, tree)
     bt = BehaviorTree.from_dict(sizes["bt"])
@@ -185,11 +181,10 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
             "max_leaf_nodes": max_leaves,
             "seeded_with": " + ".join(["budget trees",
                                        *(f"Imitation-BT+ at {L} leaves" for L in plus_seeds)]),
-            "search_budget": search_config(cfg, spec, max_leaves, search_episodes).episodes,
+            "search_budget": budget,
             "candidate_weights": "scaled to spreads" if scaled_weights else "fixed",
             "default_setting": (not plus_seeds and not scaled_weights
-                                and search_config(cfg, spec, max_leaves, search_episodes).episodes
-                                == search_config(cfg, spec, max_leaves).episodes),
+                                and budget == search_config(cfg, spec, max_leaves).episodes),
             "tree_leaves": int(tree.get_n_leaves()),
             "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
             "bt_method": sizes["bt_method"], "relational_tests": bt.relational_count,
