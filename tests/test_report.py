@@ -471,3 +471,15 @@ def test_relational_search_keeps_runs_of_different_settings_apart(tmp_path):
     assert rows[0].endswith("| met |")
     assert ("| budget trees; 40,000 search episodes; weights scaled to spreads | 3 |"
             in rows[1]) and rows[1].endswith("| missed |")
+
+
+def test_relational_search_keeps_leaf_rules_apart(tmp_path):
+    """The same seeds and budget with leaf actions by the expert's votes and by its scores
+    are two runs: two rows, the variant named."""
+    vote = _searched([21, 25, 23], [210.0, 195.0, 205.0]).assign(leaf_rule="vote")
+    score = _searched([21, 25, 23], [150.0, 155.0, 160.0]).assign(leaf_rule="score")
+    _write(tmp_path, "relational_search", pd.concat([vote, score], ignore_index=True))
+    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    rows = [line for line in text.splitlines() if line.startswith("| LunarLander-v3")]
+    assert len(rows) == 2 and "leaf actions" not in rows[0]
+    assert "| budget trees; leaf actions by the expert's mean scores | 3 |" in rows[1]

@@ -4,6 +4,7 @@ the leaf limit, and a run is deterministic in its seed."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
@@ -62,3 +63,36 @@ def test_a_small_search_is_deterministic_and_within_its_limit():
     assert first.selection_means == second.selection_means
     assert np.array_equal(first.best.threshold, second.best.threshold)
     assert first.random_steps_per_second > 0 and first.steps > 0
+
+
+class _ScoredExpert:
+    """An expert whose scores disagree with its majority: most states prefer action 0 by a
+    hair, a few prefer action 1 by far."""
+
+    def scores(self, obs: np.ndarray) -> np.ndarray:
+        strong = np.asarray(obs)[:, 0] > 1.0
+        return np.where(strong[:, None], [[0.0, 5.0]], [[1.0, 0.9]])
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.argmax(self.scores(obs), axis=1)
+
+
+def test_the_score_leaf_rule_picks_the_best_mean_score_where_the_vote_picks_the_majority():
+    task = ibt.get_task("CartPole-v1")
+    x = np.random.default_rng(1).normal(size=(400, 4)).astype(np.float32)
+    assert 0.05 < (x[:, 0] > 1.0).mean() < 0.3  # a minority prefers action 1, strongly
+    picked = {}
+    for rule in ("vote", "score"):
+        mutator = _Mutator(task, EvolveConfig(max_leaves=4, leaf_rule=rule),
+                           np.random.default_rng(0), _ScoredExpert())
+        mutator.refresh(x)
+        picked[rule] = mutator._leaf_action(np.ones(len(mutator.pool), dtype=bool))
+    # Expect: the majority label (0) by vote; the action of the highest mean score (1) by score
+    assert picked == {"vote": 0, "score": 1}
+
+
+def test_the_leaf_rule_is_checked_and_kept_out_of_old_cache_keys():
+    assert "leaf_rule" not in EvolveConfig().as_params()  # the keys of earlier runs stay
+    assert EvolveConfig(leaf_rule="score").as_params()["leaf_rule"] == "score"
+    with pytest.raises(ValueError, match="leaf_rule 'q' is not one of vote, score"):
+        EvolveConfig(leaf_rule="q")

@@ -195,6 +195,7 @@ class _Mutator:
         self.task, self.config, self.rng, self.expert = task, config, rng, expert
         self.pool = np.zeros((0, task.n_features), dtype=np.float32)
         self.labels = np.zeros(0, dtype=np.int64)
+        self.scores = np.zeros((0, task.n_actions))  # the expert's, where leaf_rule is "score"
         self.spread = np.ones(task.n_features)
 
     def refresh(self, states: np.ndarray) -> None:
@@ -204,8 +205,22 @@ class _Mutator:
         floor = np.where(np.isfinite(box) & (box > 0), 1e-3 * box, 1e-3)
         self.spread = np.maximum(self.pool.astype(np.float64).std(axis=0), floor)
         if self.expert is not None and self.config.use_expert:
-            self.labels = np.asarray(self.expert.act(self.task.observations(self.pool)),
-                                     dtype=np.int64)
+            observed = self.task.observations(self.pool)
+            if self.config.leaf_rule == "score":
+                self.scores = np.asarray(self.expert.scores(observed), dtype=np.float64)
+                self.labels = np.argmax(self.scores, axis=1).astype(np.int64)
+            else:
+                self.labels = np.asarray(self.expert.act(observed), dtype=np.int64)
+
+    def _leaf_action(self, mask: np.ndarray, fallback: int | None = None) -> int:
+        """The expert's action for the pool states in ``mask``: the majority of its labels
+        ("vote") or the highest mean score ("score": the best single action for the region
+        by the expert's own values)."""
+        if not mask.any():
+            return int(fallback if fallback is not None else 0)
+        if self.config.leaf_rule == "score":
+            return int(np.argmax(self.scores[mask].mean(axis=0)))
+        return int(np.argmax(np.bincount(self.labels[mask], minlength=self.task.n_actions)))
 
     def _reaching(self, root: tuple, path: tuple) -> np.ndarray:
         mask = np.ones(len(self.pool), dtype=bool)
@@ -230,16 +245,26 @@ class _Mutator:
         if mask.sum() < 10 or len(self.labels) != len(self.pool):
             return None
         stump = DecisionTreeClassifier(max_depth=1, random_state=0)
-        stump.fit(self.pool[mask], self.labels[mask])
+        weight = None
+        if self.config.leaf_rule == "score":
+            scores = self.scores[mask]
+            weight = scores.max(axis=1) - scores.min(axis=1) + 1e-12
+        stump.fit(self.pool[mask], self.labels[mask], sample_weight=weight)
         t = stump.tree_
         if t.node_count < 3:
             return None
-        classes = stump.classes_
-        left = ("leaf", int(classes[int(np.argmax(t.value[1, 0]))]))
-        right = ("leaf", int(classes[int(np.argmax(t.value[2, 0]))]))
+        feature, threshold = int(t.feature[0]), float(t.threshold[0])
+        if self.config.leaf_rule == "score":
+            go_left = self.pool[:, feature].astype(np.float64) <= threshold
+            left = ("leaf", self._leaf_action(mask & go_left))
+            right = ("leaf", self._leaf_action(mask & ~go_left))
+        else:
+            classes = stump.classes_
+            left = ("leaf", int(classes[int(np.argmax(t.value[1, 0]))]))
+            right = ("leaf", int(classes[int(np.argmax(t.value[2, 0]))]))
         if left[1] == right[1]:
             return None
-        return ("split", int(t.feature[0]), float(t.threshold[0]), left, right)
+        return ("split", feature, threshold, left, right)
 
     def mutate(self, root: tuple) -> tuple:
         kind = MUTATIONS[int(self.rng.integers(len(MUTATIONS)))]
@@ -282,8 +307,7 @@ class _Mutator:
             mask = self._reaching(root, path)
             if not mask.any():
                 return self.mutate(root)
-            votes = np.bincount(self.labels[mask], minlength=n_actions)
-            return _replace(root, path, ("leaf", int(np.argmax(votes))))
+            return _replace(root, path, ("leaf", self._leaf_action(mask)))
         # grow
         if _leaves(root) >= self.config.max_leaves:
             return self._grow_or_prune(root)

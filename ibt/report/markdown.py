@@ -490,8 +490,9 @@ def _ablation(res: Results) -> str | None:
 
 
 def _search_setting(rows: pd.DataFrame) -> pd.Series:
-    """What a run of Imitation-BT+SR was seeded with and, where recorded, its search budget
-    and candidate weights (rows of different settings are different runs, never averaged)."""
+    """What a run of Imitation-BT+SR was seeded with and, where recorded, its search budget,
+    candidate weights and leaf rule (rows of different settings are different runs, never
+    averaged)."""
     text = (rows["seeded_with"] if "seeded_with" in rows
             else pd.Series("budget trees", index=rows.index)).astype(str)
     if "search_budget" in rows:
@@ -500,6 +501,9 @@ def _search_setting(rows: pd.DataFrame) -> pd.Series:
     if "candidate_weights" in rows:
         text = text + rows["candidate_weights"].map(
             lambda w: f"; weights {w}" if isinstance(w, str) and w != "fixed" else "")
+    if "leaf_rule" in rows:
+        text = text + rows["leaf_rule"].map(
+            lambda r: "; leaf actions by the expert's mean scores" if r == "score" else "")
     return text
 
 

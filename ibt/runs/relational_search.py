@@ -79,10 +79,11 @@ def search_seeds(cfg: Config, task: Task, algo: str, seed: int,
 
 
 def search_config(cfg: Config, task: Task, max_leaves: int,
-                  search_episodes: int | None = None) -> EvolveConfig:
+                  search_episodes: int | None = None, leaf_rule: str = "vote") -> EvolveConfig:
     """Imitation-BT+S's search settings at ``max_leaves``, with the search's episode budget
-    ``search_episodes`` where given (the task's budget otherwise, and always under ``smoke``)."""
-    config = evolve_config(cfg, task, max_leaves)
+    ``search_episodes`` where given (the task's budget otherwise, and always under ``smoke``)
+    and the expert's ``leaf_rule`` (:attr:`ibt.tasks.settings.EvolveConfig.leaf_rule`)."""
+    config = replace(evolve_config(cfg, task, max_leaves), leaf_rule=leaf_rule)
     if search_episodes is not None and cfg.profile != "smoke":
         if search_episodes < config.generation_episodes:
             raise ValueError(f"a search budget of {search_episodes} episodes is below one "
@@ -93,16 +94,17 @@ def search_config(cfg: Config, task: Task, max_leaves: int,
 
 def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
                       plus_seeds: Sequence[int] = (), search_episodes: int | None = None,
-                      scaled_weights: bool = False) -> Evolution:
+                      scaled_weights: bool = False, leaf_rule: str = "vote") -> Evolution:
     """The relational structure search of one run (cached on its seed trees and settings);
     ``search_episodes``: the search's budget where not the task's; ``scaled_weights``: the
-    candidates' weights scaled to each pair's spreads."""
+    candidates' weights scaled to each pair's spreads; ``leaf_rule``: how the expert's help
+    picks leaf actions."""
     from ibt.bt.linear import DEFAULT_WEIGHTS
     from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
     from ibt.refine.tree_arrays import TreeArrays
 
     spec = get_task(task)
-    config = search_config(cfg, spec, max_leaves, search_episodes)
+    config = search_config(cfg, spec, max_leaves, search_episodes, leaf_rule)
     sources = search_seeds(cfg, spec, algo, seed, plus_seeds)
     path = expert_path(spec, algo, cfg.experts_dir)
     params = {"task": spec.name, "algo": algo, "seed": seed,
@@ -135,18 +137,19 @@ class RelationalSearchResult(StructureResult):
 
 def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
                           max_leaves: int, plus_seeds: Sequence[int] = (),
-                          search_episodes: int | None = None, scaled_weights: bool = False
-                          ) -> RelationalSearchResult:
+                          search_episodes: int | None = None, scaled_weights: bool = False,
+                          leaf_rule: str = "vote") -> RelationalSearchResult:
     """The relational structure search, then the polish of its winner (each cached);
     ``plus_seeds``: leaf limits of Imitation-BT+ trees added to the seed trees;
     ``search_episodes``: the search's budget where not the task's (the polish is the same);
-    ``scaled_weights``: candidate weights scaled to each pair's spreads."""
+    ``scaled_weights``: candidate weights scaled to each pair's spreads; ``leaf_rule``: how the
+    expert's help picks leaf actions ("vote" or "score")."""
     from ibt.refine.relational_structure import winner
     from ibt.runs.front import refinement_cached
 
     spec = get_task(task)
     evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds,
-                                  search_episodes, scaled_weights)
+                                  search_episodes, scaled_weights, leaf_rule)
     polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
     return RelationalSearchResult(evolution, refinement_cached(cfg, spec, algo, seed, METHOD,
                                                                winner(evolution), polish))
@@ -155,8 +158,8 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
 def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
                           max_leaves: int, episodes: int = 1000,
                           threshold: float | None = 200.0, plus_seeds: Sequence[int] = (),
-                          search_episodes: int | None = None, scaled_weights: bool = False
-                          ) -> dict[str, Any]:
+                          search_episodes: int | None = None, scaled_weights: bool = False,
+                          leaf_rule: str = "vote") -> dict[str, Any]:
     """One run: its smallest verified BT (nodes, relational tests), the 100-episode final
     evaluation of its tree and the anchors' protocol (``episodes`` final episodes of the BT
     from its JSON, the share at or above ``threshold``), and what the run cost."""
@@ -169,7 +172,7 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
 
     spec = get_task(task)
     found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds,
-                                  search_episodes, scaled_weights)
+                                  search_episodes, scaled_weights, leaf_rule)
     budget = search_config(cfg, spec, max_leaves, search_episodes).episodes
     tree = found.tree
     sizes = bt_sizes(cfg, spec, tree)
@@ -183,7 +186,8 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
                                        *(f"Imitation-BT+ at {L} leaves" for L in plus_seeds)]),
             "search_budget": budget,
             "candidate_weights": "scaled to spreads" if scaled_weights else "fixed",
-            "default_setting": (not plus_seeds and not scaled_weights
+            "leaf_rule": leaf_rule,
+            "default_setting": (not plus_seeds and not scaled_weights and leaf_rule == "vote"
                                 and budget == search_config(cfg, spec, max_leaves).episodes),
             "tree_leaves": int(tree.get_n_leaves()),
             "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
@@ -206,7 +210,7 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
 def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: list[int],
                             leaves: list[int], threshold: dict[str, float] | None = None,
                             plus_seeds: Sequence[int] = (), search_episodes: int | None = None,
-                            scaled_weights: bool = False) -> Any:
+                            scaled_weights: bool = False, leaf_rule: str = "vote") -> Any:
     """:func:`relational_search_row` for every (task, expert), leaf limit and seed."""
     import pandas as pd
     from tqdm import tqdm
@@ -215,7 +219,7 @@ def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: 
     runs = [(t, a, L, s) for t, a in experts for L in leaves for s in seeds]
     rows = [relational_search_row(cfg, t, a, s, L, threshold=threshold.get(t),
                                   plus_seeds=plus_seeds, search_episodes=search_episodes,
-                                  scaled_weights=scaled_weights)
+                                  scaled_weights=scaled_weights, leaf_rule=leaf_rule)
             for t, a, L, s in tqdm(runs, desc="imitation-bt+sr", disable=not cfg.progress)]
     return pd.DataFrame(rows)
 

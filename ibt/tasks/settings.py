@@ -104,6 +104,9 @@ class RefineConfig:
         return out
 
 
+LEAF_RULES = ("vote", "score")  # EvolveConfig.leaf_rule
+
+
 @dataclass(frozen=True)
 class EvolveConfig:
     """Everything that determines a structure search by return (:mod:`ibt.refine.structure`,
@@ -117,6 +120,11 @@ class EvolveConfig:
     generation_episodes: int = 12  # episodes per tree and generation (all trees share them)
     sigma: float = 0.3  # threshold steps, in spreads of the feature
     use_expert: bool = True  # "grow" by the expert's labels and "relabel" leaves
+    #: how the expert's help picks a leaf's action: "vote" (the majority of its labels over the
+    #: pool states reaching the leaf) or "score" (the action of the highest mean score there:
+    #: Q-values for DQN, log pi for PPO/A2C; the CART stump of "grow" then also fits weighted by
+    #: ``max_a score - min_a score``, as the distillation resamples)
+    leaf_rule: str = "vote"
     pool_every: int = 10  # generations between refreshes of the visited-state pool
     pool_episodes: int = 8
     selection_episodes: int = 100  # held-out episodes for the final choice
@@ -124,8 +132,18 @@ class EvolveConfig:
     n_envs: int = 64
     refine_episodes: int = 16_000  # the polish: CMA-ES on thresholds, then free pruning
 
+    def __post_init__(self) -> None:
+        if self.leaf_rule not in LEAF_RULES:
+            raise ValueError(f"leaf_rule {self.leaf_rule!r} is not one of "
+                             f"{', '.join(LEAF_RULES)}")
+
     def as_params(self) -> dict[str, Any]:
-        return asdict(self)
+        """Plain data for cache keys; ``leaf_rule`` only where not the default, so the keys
+        of every search run before it existed stay as they were."""
+        params = asdict(self)
+        if params["leaf_rule"] == "vote":
+            del params["leaf_rule"]
+        return params
 
 
 @dataclass(frozen=True)
