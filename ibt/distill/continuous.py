@@ -25,8 +25,16 @@ import numpy as np
 from sklearn.tree import DecisionTreeRegressor
 from tqdm import tqdm
 
-from ibt.distill.loop import METHODS, Distillation, mix
-from ibt.evaluate.rollouts import TRAIN_SEED_BASE, rollout, selection_seeds
+from ibt.distill.loop import (
+    METHODS,
+    Distillation,
+    choose_best,
+    iteration_seeds,
+    mix,
+    record_iteration,
+    resample,
+)
+from ibt.evaluate.rollouts import rollout, selection_seeds
 from ibt.experts.expert import Expert
 from ibt.tasks.settings import BOX_MAX_LEAF_NODES
 from ibt.tasks.task import Task
@@ -129,39 +137,23 @@ def distill_box(task: Task, expert: Expert, config: BoxDistillConfig, seed: int 
             return np.where(use_expert[:, None], expert_actions,
                             tree_actions(learner, features[-1]))
 
-        train_seeds = [TRAIN_SEED_BASE + 100_000 * seed + 1_000 * i + k for k in range(1_000)]
-        rollout(task, act, train_seeds, n_envs=config.collect_envs,
+        rollout(task, act, iteration_seeds(seed, i), n_envs=config.collect_envs,
                 budget=config.labels_per_iteration)
         x = np.concatenate(features)
         y = np.concatenate(labels)
         new_labels, n_labels = len(y) - n_labels, len(y)
         if method.weighted:
-            w = np.concatenate(weights)
-            p = w / w.sum() if w.sum() > 0 else None
-            idx = rng.choice(len(x), size=len(x), replace=True, p=p)
-            x, y = x[idx], y[idx]
+            x, y = resample(x, y, weights, rng)
         tree = DecisionTreeRegressor(max_leaf_nodes=config.max_leaf_nodes,
                                      max_depth=config.max_depth, random_state=seed)
         tree.fit(x, y)
         learner = tree
-        key = regression_signature(tree)
-        if key not in scored:
-            result = rollout(task, box_tree_policy(task, tree), eval_seeds,
-                             n_envs=config.eval_envs)
-            scored[key] = (result.mean, result.std)
-        mean, std = scored[key]
-        record.trees.append(tree)  # a regressor here (the record holds any fitted tree)
-        record.iterations.append({
-            "iteration": i, "beta": beta, "labels": new_labels, "dataset": n_labels,
-            "nodes": int(tree.tree_.node_count), "leaves": int(tree.get_n_leaves()),
-            "selection_mean": mean, "selection_std": std,
-        })
+        # a regressor here (the record holds any fitted tree)
+        record_iteration(record, scored, tree, regression_signature(tree), i, beta, new_labels,
+                         n_labels, task, box_tree_policy(task, tree), eval_seeds,
+                         config.eval_envs)
         bar.set_postfix(best=max(s for s, _ in scored.values()), beta=f"{beta:.2f}")
-    record.best_index = max(
-        range(n), key=lambda k: (record.iterations[k]["selection_mean"],
-                                 -record.iterations[k]["nodes"], -k))
-    record.wall_seconds = time.perf_counter() - start
-    return record
+    return choose_best(record, start)
 
 
 def regressor_doc(tree: DecisionTreeRegressor) -> dict[str, Any]:

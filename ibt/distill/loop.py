@@ -190,17 +190,13 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
                 return expert_actions
             return mix(expert_actions, learner.predict(features[-1]), beta, rng)
 
-        train_seeds = [TRAIN_SEED_BASE + 100_000 * seed + 1_000 * i + k for k in range(1_000)]
-        rollout(task, act, train_seeds, n_envs=config.collect_envs,
+        rollout(task, act, iteration_seeds(seed, i), n_envs=config.collect_envs,
                 budget=config.labels_per_iteration)
         x = np.concatenate(features)
         y = np.concatenate(labels)
         new_labels, n_labels = len(y) - n_labels, len(y)
         if config.weighted:
-            w = np.concatenate(weights)
-            p = w / w.sum() if w.sum() > 0 else None
-            idx = rng.choice(len(x), size=len(x), replace=True, p=p)
-            x, y = x[idx], y[idx]
+            x, y = resample(x, y, weights, rng)
         if relational:
             from ibt.distill.relational import fit_relational_tree
 
@@ -212,22 +208,53 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
                                           ccp_alpha=config.ccp_alpha, random_state=seed)
             tree.fit(x, y)
         learner = CompiledTree(tree)  # a relational tree's derived columns included
-        key = tree_signature(tree)
-        if key not in scored:
-            result = rollout(task, learner_policy(task, learner), eval_seeds,
-                             n_envs=config.eval_envs)
-            scored[key] = (result.mean, result.std)
-        mean, std = scored[key]
-        record.trees.append(tree)
-        record.iterations.append({
-            "iteration": i, "beta": beta, "labels": new_labels, "dataset": n_labels,
-            "nodes": int(tree.tree_.node_count), "leaves": int(tree.get_n_leaves()),
-            "selection_mean": mean, "selection_std": std,
-        })
+        record_iteration(record, scored, tree, tree_signature(tree), i, beta, new_labels,
+                         n_labels, task, learner_policy(task, learner), eval_seeds,
+                         config.eval_envs)
         bar.set_postfix(best=max(s for s, _ in scored.values()), beta=f"{beta:.2f}")
+    return choose_best(record, start)
+
+
+def iteration_seeds(seed: int, iteration: int) -> list[int]:
+    """The episode seeds iteration ``iteration`` of run ``seed`` collects on (its own block of
+    1,000 in the run's block of training seeds)."""
+    return [TRAIN_SEED_BASE + 100_000 * seed + 1_000 * iteration + k for k in range(1_000)]
+
+
+def resample(x: np.ndarray, y: np.ndarray, weights: list[np.ndarray],
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The aggregated data drawn again with replacement, as many rows, each with probability
+    proportional to its state's weight (uniform where every weight is 0)."""
+    w = np.concatenate(weights)
+    p = w / w.sum() if w.sum() > 0 else None
+    idx = rng.choice(len(x), size=len(x), replace=True, p=p)
+    return x[idx], y[idx]
+
+
+def record_iteration(record: Distillation, scored: dict[bytes, tuple[float, float]], tree: Any,
+                     key: bytes, iteration: int, beta: float, new_labels: int, dataset: int,
+                     task: Task, policy: Any, eval_seeds: list[int], eval_envs: int) -> None:
+    """Append one iteration's tree and row; ``policy`` (the tree's ``act``) is rolled out on
+    ``eval_seeds`` only for a tree not scored before (``key``: its signature), so equal trees
+    share one score."""
+    if key not in scored:
+        result = rollout(task, policy, eval_seeds, n_envs=eval_envs)
+        scored[key] = (result.mean, result.std)
+    mean, std = scored[key]
+    record.trees.append(tree)
+    record.iterations.append({
+        "iteration": iteration, "beta": beta, "labels": new_labels, "dataset": dataset,
+        "nodes": int(tree.tree_.node_count), "leaves": int(tree.get_n_leaves()),
+        "selection_mean": mean, "selection_std": std,
+    })
+
+
+def choose_best(record: Distillation, start: float) -> Distillation:
+    """The run's best iteration (highest selection mean, then fewest nodes, then earliest)
+    and its wall time since ``start`` (a ``perf_counter`` reading)."""
     record.best_index = max(
-        range(n), key=lambda k: (record.iterations[k]["selection_mean"],
-                                 -record.iterations[k]["nodes"], -k))
+        range(len(record.iterations)), key=lambda k: (record.iterations[k]["selection_mean"],
+                                                      -record.iterations[k]["nodes"], -k))
     record.wall_seconds = time.perf_counter() - start
     return record
 
