@@ -366,19 +366,30 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
     bar.close()
     # the stages' results, side by side on held-out selection episodes
     structures = record.candidates
-    held_out = selection_seeds(config.selection_episodes, seed, offset=REFINE_SELECTION_OFFSET)
-    scores = []
-    for arrays in structures:
-        population = Population(arrays, arrays.threshold, arrays.action)
-        scores.append(float(episodes.score(population, held_out, count=False).mean()))
+    scores = held_out_means(episodes, [Population(a, a.threshold, a.action) for a in structures],
+                            config, seed)
     eligible = [i for i, a in enumerate(structures)
                 if config.max_leaves is None or a.n_leaves <= config.max_leaves]
     if not eligible:
         eligible = [len(structures) - 1]
     record.best_index = max(eligible, key=lambda i: (scores[i], -structures[i].n_leaves, -i))
+    return close_record(record, scores, episodes, start, cpu_start)
+
+
+def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineConfig,
+                   seed: int) -> list[float]:
+    """Each candidate's mean return on the run's held-out selection episodes (disjoint from
+    its refinement episodes and the final evaluation; not counted in the budget)."""
+    held_out = selection_seeds(config.selection_episodes, seed, offset=REFINE_SELECTION_OFFSET)
+    return [float(episodes.score(p, held_out, count=False).mean()) for p in populations]
+
+
+def close_record(record: Any, scores: list[float], episodes: _Episodes, start: float,
+                 cpu_start: float) -> Any:
+    """A refinement's record completed: its selection means and what the run cost (episodes,
+    steps, wall and CPU seconds since ``start``/``cpu_start``)."""
     record.selection_means = scores
-    record.episodes = episodes.used
-    record.steps = episodes.steps
+    record.episodes, record.steps = episodes.used, episodes.steps
     record.wall_seconds = time.perf_counter() - start
     record.cpu_seconds = time.process_time() - cpu_start
     return record

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from ibt.evaluate.rollouts import REFINE_SELECTION_OFFSET, rollout, selection_seeds
-from ibt.refine.by_return import _Episodes
+from ibt.evaluate.rollouts import rollout
+from ibt.refine.by_return import _Episodes, close_record, held_out_means
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
@@ -264,14 +264,7 @@ def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, 
                               "episodes_used": episodes.used, **info})
         bar.set_postfix(stage=name, leaves=current.n_leaves)
     bar.close()
-    held_out = selection_seeds(config.selection_episodes, seed, offset=REFINE_SELECTION_OFFSET)
-    scores = []
-    for arrays in record.candidates:
-        population = CommandPopulation(arrays, arrays.structure.threshold, arrays.values)
-        scores.append(float(episodes.score(population, held_out, count=False).mean()))
+    scores = held_out_means(episodes, [CommandPopulation(a, a.structure.threshold, a.values)
+                                       for a in record.candidates], config, seed)
     record.best_index = max(range(len(scores)), key=lambda i: (scores[i], -i))
-    record.selection_means = scores
-    record.episodes, record.steps = episodes.used, episodes.steps
-    record.wall_seconds = time.perf_counter() - start
-    record.cpu_seconds = time.process_time() - cpu_start
-    return record
+    return close_record(record, scores, episodes, start, cpu_start)
