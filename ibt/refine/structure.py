@@ -212,12 +212,10 @@ class _Mutator:
             else:
                 self.labels = np.asarray(self.expert.act(observed), dtype=np.int64)
 
-    def _leaf_action(self, mask: np.ndarray, fallback: int | None = None) -> int:
-        """The expert's action for the pool states in ``mask``: the majority of its labels
-        ("vote") or the highest mean score ("score": the best single action for the region
-        by the expert's own values)."""
-        if not mask.any():
-            return int(fallback if fallback is not None else 0)
+    def _leaf_action(self, mask: np.ndarray) -> int:
+        """The expert's action for the pool states in ``mask`` (at least one): the majority of
+        its labels ("vote") or the highest mean score ("score": the best single action for
+        the region by the expert's own values)."""
         if self.config.leaf_rule == "score":
             return int(np.argmax(self.scores[mask].mean(axis=0)))
         return int(np.argmax(np.bincount(self.labels[mask], minlength=self.task.n_actions)))
