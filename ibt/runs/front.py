@@ -87,6 +87,34 @@ ANCHORS = (
 )
 
 
+#: The bar of a small BT (issue 26, and issue 22 at 12 leaves or fewer) on the anchors' protocol,
+#: per task: every seed's BT at most this many nodes, the mean return over seeds (1,000 final
+#: episodes each) at least this; at larger limits the bar is the task's published anchor at its
+#: own size (:data:`ANCHORS`: above its mean, its share, at most its BT nodes).
+#: Each row carries its bar, so the report reads it from the CSV.
+SMALL_BARS: dict[str, dict[str, Any]] = {
+    "LunarLander-v3": {"up_to_leaves": 12, "bar_max_bt_nodes": 25, "bar_min_return": 200.0,
+                       "bar_strict": False, "bar_min_share": None,
+                       "bar_source": "issues 22 and 26"}}
+BAR_SEEDS = 3  # the bars are means over this many seeds
+
+
+def bar_of(task: str, max_leaves: int) -> dict[str, Any]:
+    """The ``bar_*`` columns of a run at ``max_leaves`` (all None where the task has none)."""
+    small = SMALL_BARS.get(task)
+    if small is not None and max_leaves <= small["up_to_leaves"]:
+        return {**{k: v for k, v in small.items() if k != "up_to_leaves"},
+                "bar_seeds": BAR_SEEDS}
+    anchor = next((a for a in ANCHORS if a.task == task and a.max_bt_nodes
+                   and a.leaves is not None and max_leaves <= a.leaves), None)
+    if anchor is None:
+        return dict.fromkeys(("bar_max_bt_nodes", "bar_min_return", "bar_strict",
+                              "bar_min_share", "bar_source", "bar_seeds"))
+    return {"bar_max_bt_nodes": anchor.max_bt_nodes, "bar_min_return": anchor.mean_return,
+            "bar_strict": True, "bar_min_share": anchor.min_share, "bar_source": anchor.source,
+            "bar_seeds": BAR_SEEDS}
+
+
 def refine_config(cfg: Config, task: str | Task, **overrides: Any) -> RefineConfig:
     """The task's refinement budget (:func:`ibt.refine.by_return.task_config`), shrunk to
     seconds under the ``smoke`` profile."""

@@ -37,36 +37,6 @@ from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
 
 METHOD = "imitation-bt+sr"  # structure search with relational tests, polished
-#: The bar of a small BT (issue 26, and issue 22 at 12 leaves or fewer) on the anchors' protocol,
-#: per task: every seed's BT at most this many nodes, the mean return over seeds (1,000 final
-#: episodes each) at least this; at larger limits the bar is the task's published anchor at its
-#: own size (:data:`ibt.runs.front.ANCHORS`: above its mean, its share, at most its BT nodes).
-#: Each row carries its bar, so the report reads it from the CSV.
-SMALL_BARS: dict[str, dict[str, Any]] = {
-    "LunarLander-v3": {"up_to_leaves": 12, "bar_max_bt_nodes": 25, "bar_min_return": 200.0,
-                       "bar_strict": False, "bar_min_share": None,
-                       "bar_source": "issues 22 and 26"}}
-BAR_SEEDS = 3  # the bars are means over this many seeds
-
-
-def bar_of(task: str, max_leaves: int) -> dict[str, Any]:
-    """The ``bar_*`` columns of a run at ``max_leaves`` (all None where the task has none)."""
-    from ibt.runs.front import ANCHORS
-
-    small = SMALL_BARS.get(task)
-    if small is not None and max_leaves <= small["up_to_leaves"]:
-        return {**{k: v for k, v in small.items() if k != "up_to_leaves"},
-                "bar_seeds": BAR_SEEDS}
-    anchor = next((a for a in ANCHORS if a.task == task and a.max_bt_nodes
-                   and a.leaves is not None and max_leaves <= a.leaves), None)
-    if anchor is None:
-        return dict.fromkeys(("bar_max_bt_nodes", "bar_min_return", "bar_strict",
-                              "bar_min_share", "bar_source", "bar_seeds"))
-    return {"bar_max_bt_nodes": anchor.max_bt_nodes, "bar_min_return": anchor.mean_return,
-            "bar_strict": True, "bar_min_share": anchor.min_share, "bar_source": anchor.source,
-            "bar_seeds": BAR_SEEDS}
-
-
 def search_seeds(cfg: Config, task: Task, algo: str, seed: int,
                  plus_seeds: Sequence[int] = ()) -> list[Any]:
     """Imitation-BT+S's seed trees (:func:`ibt.runs.search.seed_trees`), then Imitation-BT+'s
@@ -166,7 +136,7 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
     from ibt.bt.model import BehaviorTree
     from ibt.distill.relational import relational_tests
     from ibt.evaluate.rollouts import retention_norm
-    from ibt.runs.front import bt_sizes
+    from ibt.runs.front import bar_of, bt_sizes
     from ibt.runs.grid import evaluate_tree, expert_evaluation
     from ibt.runs.search import protocol_evaluation
 
@@ -224,6 +194,6 @@ def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: 
     return pd.DataFrame(rows)
 
 
-__all__ = ["METHOD", "SMALL_BARS", "RelationalSearchResult", "bar_of", "evolve_rel_cached",
+__all__ = ["METHOD", "RelationalSearchResult", "evolve_rel_cached",
            "relational_search_row", "relational_search_run", "relational_search_table",
            "search_config", "search_seeds"]

@@ -165,7 +165,7 @@ def protocol_table(cfg: Config, table: Any, threshold: dict[str, float] | None =
     200, the "solved" landing)."""
     import pandas as pd
 
-    from ibt.runs.front import ANCHORS, bt_sizes
+    from ibt.runs.front import bar_of, bt_sizes
 
     threshold = threshold or {}
     rows = []
@@ -173,7 +173,6 @@ def protocol_table(cfg: Config, table: Any, threshold: dict[str, float] | None =
         found = structure_run(cfg, run.task, run.expert, int(run.seed), int(run.max_leaf_nodes))
         bt = BehaviorTree.from_dict(bt_sizes(cfg, run.task, found.tree)["bt"])
         result = protocol_evaluation(cfg, run.task, bt, episodes, threshold.get(run.task))
-        anchor = next((a for a in ANCHORS if a.task == run.task and a.max_bt_nodes), None)
         rows.append({"task": run.task, "expert": run.expert, "max_leaf_nodes": run.max_leaf_nodes,
                      "seed": run.seed, "tree_leaves": run.tree_leaves, "bt_nodes": bt.node_count,
                      "episodes": result["episodes"], "mean_return": result["mean_return"],
@@ -183,11 +182,7 @@ def protocol_table(cfg: Config, table: Any, threshold: dict[str, float] | None =
                      "cpu_seconds": run.refine_seconds, "env_steps": run.refine_steps,
                      "search_steps_per_second": round(found.evolution.steps_per_second),
                      "random_steps_per_second": round(found.evolution.random_steps_per_second),
-                     "anchor": anchor.source if anchor else "",
-                     "anchor_leaves": anchor.leaves if anchor else None,
-                     "anchor_mean_return": anchor.mean_return if anchor else None,
-                     "anchor_max_bt_nodes": anchor.max_bt_nodes if anchor else None,
-                     "anchor_min_share": anchor.min_share if anchor else None})
+                     **bar_of(run.task, int(run.max_leaf_nodes))})
     return pd.DataFrame(rows)
 
 
