@@ -483,3 +483,15 @@ def test_relational_search_keeps_leaf_rules_apart(tmp_path):
     rows = [line for line in text.splitlines() if line.startswith("| LunarLander-v3")]
     assert len(rows) == 2 and "leaf actions" not in rows[0]
     assert "| budget trees; leaf actions by the expert's mean scores | 3 |" in rows[1]
+
+
+def test_relational_search_names_a_longer_held_out_choice(tmp_path):
+    """Runs chosen on more held-out episodes than the task's are another setting: their own
+    row, named; the task's own choice (None) adds nothing to the name."""
+    task = _searched([21, 25, 23], [210.0, 195.0, 205.0]).assign(selection_episodes=None)
+    longer = _searched([21, 25, 23], [215.0, 200.0, 205.0]).assign(selection_episodes=500)
+    _write(tmp_path, "relational_search", pd.concat([task, longer], ignore_index=True))
+    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    rows = [line for line in text.splitlines() if line.startswith("| LunarLander-v3")]
+    assert len(rows) == 2 and "held-out" not in rows[0]
+    assert "| budget trees; chosen on 500 held-out episodes | 3 |" in rows[1]

@@ -3,6 +3,8 @@ the leaf limit, and a run is deterministic in its seed."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -10,7 +12,7 @@ from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
 import ibt
-from ibt.refine.structure import Forest, _Mutator, arrays, evolve, nested
+from ibt.refine.structure import Forest, _Mutator, arrays, evolve, nested, reselect
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import EvolveConfig
 
@@ -63,6 +65,26 @@ def test_a_small_search_is_deterministic_and_within_its_limit():
     assert first.selection_means == second.selection_means
     assert np.array_equal(first.best.threshold, second.best.threshold)
     assert first.random_steps_per_second > 0 and first.steps > 0
+
+
+def test_choosing_again_on_more_episodes_is_the_search_run_with_them():
+    """The search's path does not depend on its held-out choice, so :func:`reselect` of a
+    cached search equals the search run with that many selection episodes."""
+    task = ibt.get_task("CartPole-v1")
+    source = _tree(1, 6, n_features=4, n_actions=2)
+    config = EvolveConfig(max_leaves=3, episodes=120, mu=2, lam=4, generation_episodes=4,
+                          pool_episodes=2, selection_episodes=3, finalists=4, n_envs=8,
+                          use_expert=False)
+    short = evolve([source], task, config, seed=5, progress=False)
+    direct = evolve([source], task, replace(config, selection_episodes=9), seed=5,
+                    progress=False)
+    again = reselect(short, task, 9)
+    assert again.selection_means == direct.selection_means
+    assert again.best_index == direct.best_index and again.config == direct.config
+    assert all(np.array_equal(a.threshold, b.threshold)
+               for a, b in zip(again.finalists, direct.finalists, strict=True))
+    assert again.episodes == short.episodes and again.cpu_seconds >= short.cpu_seconds
+    assert short.selection_means != again.selection_means  # the record chosen from is kept
 
 
 class _ScoredExpert:

@@ -32,7 +32,7 @@ from ibt.distill.relational import (
 )
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout
 from ibt.refine.relational import FEATURE_MAP_KEY, augmented_task
-from ibt.refine.structure import Evolution, evolve
+from ibt.refine.structure import Evolution, evolve, reselect
 from ibt.refine.tree_arrays import LEAF, TreeArrays
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -94,6 +94,13 @@ def evolve_relational(sources: list[TreeArrays], task: Task, config: EvolveConfi
     return record
 
 
+def reselect_relational(record: Evolution, task: Task, selection_episodes: int) -> Evolution:
+    """:func:`ibt.refine.structure.reselect` of a relational search (its finalists read the
+    augmented columns of the record's candidate map)."""
+    wide = augmented_task(task, FeatureMap.from_json(record.config[FEATURE_MAP_KEY]))
+    return reselect(record, wide, selection_episodes)
+
+
 def winner(record: Evolution) -> RelationalTreeClassifier:
     """The search's chosen tree as a relational tree over only the derived columns it tests."""
     fmap = FeatureMap.from_json(record.config[FEATURE_MAP_KEY])
@@ -101,4 +108,5 @@ def winner(record: Evolution) -> RelationalTreeClassifier:
     return as_relational(tree.to_sklearn(), small)
 
 
-__all__ = ["compact", "evolve_relational", "search_map", "widen", "winner"]
+__all__ = ["compact", "evolve_relational", "reselect_relational", "search_map", "widen",
+           "winner"]

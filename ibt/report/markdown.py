@@ -501,8 +501,8 @@ def _ablation(res: Results) -> str | None:
 
 def _search_setting(rows: pd.DataFrame) -> pd.Series:
     """What a run of Imitation-BT+SR was seeded with and, where recorded, its search budget,
-    candidate weights and leaf rule (rows of different settings are different runs, never
-    averaged)."""
+    candidate weights, leaf rule and held-out choice (rows of different settings are different
+    runs, never averaged)."""
     text = (rows["seeded_with"] if "seeded_with" in rows
             else pd.Series("budget trees", index=rows.index)).astype(str)
     if "search_budget" in rows:
@@ -514,6 +514,9 @@ def _search_setting(rows: pd.DataFrame) -> pd.Series:
     if "leaf_rule" in rows:
         text = text + rows["leaf_rule"].map(
             lambda r: "; leaf actions by the expert's mean scores" if r == "score" else "")
+    if "selection_episodes" in rows:
+        text = text + rows["selection_episodes"].map(
+            lambda n: f"; chosen on {int(n):,} held-out episodes" if pd.notna(n) else "")
     return text
 
 

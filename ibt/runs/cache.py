@@ -82,6 +82,7 @@ CODE_VERSIONS: dict[str, int] = {
     "refine-rel": 1,  # ibt.refine.relational.refine_relational of a relational tree
     # structure search with relational tests (issues 22 and 26): ibt.runs.relational_search
     "evolve-rel": 1,  # evolve_rel_cached: ibt.refine.relational_structure.evolve_relational
+    "evolve-select": 1,  # evolve_rel_cached: its search chosen again on more held-out episodes
 }
 READS_ENV = "IBT_CACHE_READS"
 

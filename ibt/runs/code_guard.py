@@ -74,6 +74,9 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                    "refine/structure.py", "distill/relational.py", "bt/linear.py",
                    "runs/relational_search.py", "runs/search.py", "experts/expert.py", *_TREES,
                    *_ROLLOUT),
+    "evolve-select": ("refine/relational_structure.py", "refine/relational.py",
+                      "refine/structure.py", "distill/relational.py", "bt/linear.py",
+                      "runs/relational_search.py", *_TREES, *_ROLLOUT),
 }
 
 

@@ -64,13 +64,20 @@ def search_config(cfg: Config, task: Task, max_leaves: int,
 
 def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
                       plus_seeds: Sequence[int] = (), search_episodes: int | None = None,
-                      scaled_weights: bool = False, leaf_rule: str = "vote") -> Evolution:
+                      scaled_weights: bool = False, leaf_rule: str = "vote",
+                      selection_episodes: int | None = None) -> Evolution:
     """The relational structure search of one run (cached on its seed trees and settings);
     ``search_episodes``: the search's budget where not the task's; ``scaled_weights``: the
     candidates' weights scaled to each pair's spreads; ``leaf_rule``: how the expert's help
-    picks leaf actions."""
+    picks leaf actions; ``selection_episodes``: the held-out episodes that choose among its
+    finalists where not the task's (the same search, chosen again:
+    :func:`ibt.refine.structure.reselect`, cached as ``evolve-select``; not under ``smoke``)."""
     from ibt.bt.linear import DEFAULT_WEIGHTS
-    from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
+    from ibt.refine.relational_structure import (
+        CANDIDATE_EPISODES,
+        evolve_relational,
+        reselect_relational,
+    )
     from ibt.refine.tree_arrays import TreeArrays
 
     spec = get_task(task)
@@ -89,8 +96,24 @@ def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_l
                                  seed, expert=expert, scaled_weights=scaled_weights,
                                  progress=cfg.progress)
 
-    return load_or_compute("evolve-rel", params, compute, cache_dir=cfg.cache_dir,
-                           codec="evolution", refresh=cfg.refresh)
+    record = load_or_compute("evolve-rel", params, compute, cache_dir=cfg.cache_dir,
+                             codec="evolution", refresh=cfg.refresh)
+    choice = chosen_on(cfg, config, selection_episodes)
+    if choice == config.selection_episodes:
+        return record
+    return load_or_compute("evolve-select", {**params, "selection_episodes": choice},
+                           lambda: reselect_relational(record, spec, choice),
+                           cache_dir=cfg.cache_dir, codec="evolution", refresh=cfg.refresh)
+
+
+def chosen_on(cfg: Config, config: EvolveConfig, selection_episodes: int | None) -> int:
+    """The held-out episodes of a run's choices (the search's among its finalists, the
+    polish's): ``selection_episodes`` where given, the task's otherwise and under ``smoke``."""
+    if selection_episodes is None or cfg.profile == "smoke":
+        return config.selection_episodes
+    if selection_episodes < 1:
+        raise ValueError(f"selection_episodes must be at least 1, not {selection_episodes}")
+    return int(selection_episodes)
 
 
 @dataclass(frozen=True)
@@ -108,19 +131,24 @@ class RelationalSearchResult(StructureResult):
 def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
                           max_leaves: int, plus_seeds: Sequence[int] = (),
                           search_episodes: int | None = None, scaled_weights: bool = False,
-                          leaf_rule: str = "vote") -> RelationalSearchResult:
+                          leaf_rule: str = "vote", selection_episodes: int | None = None
+                          ) -> RelationalSearchResult:
     """The relational structure search, then the polish of its winner (each cached);
     ``plus_seeds``: leaf limits of Imitation-BT+ trees added to the seed trees;
     ``search_episodes``: the search's budget where not the task's (the polish is the same);
     ``scaled_weights``: candidate weights scaled to each pair's spreads; ``leaf_rule``: how the
-    expert's help picks leaf actions ("vote" or "score")."""
+    expert's help picks leaf actions ("vote" or "score"); ``selection_episodes``: the held-out
+    episodes of the search's and the polish's choices where not the task's."""
     from ibt.refine.relational_structure import winner
     from ibt.runs.front import refinement_cached
 
     spec = get_task(task)
     evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds,
-                                  search_episodes, scaled_weights, leaf_rule)
-    polish = polish_config(cfg, evolve_config(cfg, spec, max_leaves))
+                                  search_episodes, scaled_weights, leaf_rule,
+                                  selection_episodes)
+    base = evolve_config(cfg, spec, max_leaves)
+    polish = polish_config(cfg, replace(base, selection_episodes=chosen_on(
+        cfg, base, selection_episodes)))
     return RelationalSearchResult(evolution, refinement_cached(cfg, spec, algo, seed, METHOD,
                                                                winner(evolution), polish))
 
@@ -129,7 +157,8 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
                           max_leaves: int, episodes: int = 1000,
                           threshold: float | None = 200.0, plus_seeds: Sequence[int] = (),
                           search_episodes: int | None = None, scaled_weights: bool = False,
-                          leaf_rule: str = "vote") -> dict[str, Any]:
+                          leaf_rule: str = "vote", selection_episodes: int | None = None
+                          ) -> dict[str, Any]:
     """One run: its smallest verified BT (nodes, relational tests), the 100-episode final
     evaluation of its tree and the anchors' protocol (``episodes`` final episodes of the BT
     from its JSON, the share at or above ``threshold``), and what the run cost."""
@@ -142,8 +171,10 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
 
     spec = get_task(task)
     found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds,
-                                  search_episodes, scaled_weights, leaf_rule)
-    budget = search_config(cfg, spec, max_leaves, search_episodes).episodes
+                                  search_episodes, scaled_weights, leaf_rule,
+                                  selection_episodes)
+    config = search_config(cfg, spec, max_leaves, search_episodes)
+    budget, choice = config.episodes, chosen_on(cfg, config, selection_episodes)
     tree = found.tree
     sizes = bt_sizes(cfg, spec, tree)
     bt = BehaviorTree.from_dict(sizes["bt"])
@@ -157,8 +188,11 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
             "search_budget": budget,
             "candidate_weights": "scaled to spreads" if scaled_weights else "fixed",
             "leaf_rule": leaf_rule,
+            # the choices' held-out episodes where not the task's (None: the task's)
+            "selection_episodes": None if choice == config.selection_episodes else choice,
             "default_setting": (not plus_seeds and not scaled_weights and leaf_rule == "vote"
-                                and budget == search_config(cfg, spec, max_leaves).episodes),
+                                and budget == search_config(cfg, spec, max_leaves).episodes
+                                and choice == config.selection_episodes),
             "tree_leaves": int(tree.get_n_leaves()),
             "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
             "bt_method": sizes["bt_method"], "relational_tests": bt.relational_count,
@@ -180,7 +214,8 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
 def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: list[int],
                             leaves: list[int], threshold: dict[str, float] | None = None,
                             plus_seeds: Sequence[int] = (), search_episodes: int | None = None,
-                            scaled_weights: bool = False, leaf_rule: str = "vote") -> Any:
+                            scaled_weights: bool = False, leaf_rule: str = "vote",
+                            selection_episodes: int | None = None) -> Any:
     """:func:`relational_search_row` for every (task, expert), leaf limit and seed."""
     import pandas as pd
     from tqdm import tqdm
@@ -189,11 +224,12 @@ def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: 
     runs = [(t, a, L, s) for t, a in experts for L in leaves for s in seeds]
     rows = [relational_search_row(cfg, t, a, s, L, threshold=threshold.get(t),
                                   plus_seeds=plus_seeds, search_episodes=search_episodes,
-                                  scaled_weights=scaled_weights, leaf_rule=leaf_rule)
+                                  scaled_weights=scaled_weights, leaf_rule=leaf_rule,
+                                  selection_episodes=selection_episodes)
             for t, a, L, s in tqdm(runs, desc="imitation-bt+sr", disable=not cfg.progress)]
     return pd.DataFrame(rows)
 
 
-__all__ = ["METHOD", "RelationalSearchResult", "evolve_rel_cached",
+__all__ = ["METHOD", "RelationalSearchResult", "chosen_on", "evolve_rel_cached",
            "relational_search_row", "relational_search_run", "relational_search_table",
            "search_config", "search_seeds"]
