@@ -53,12 +53,17 @@ def test_nested_round_trip_and_mutations_keep_the_limit(tree_seed, leaves, mutat
         assert arrays(root, 4, 2).n_leaves <= leaves  # the search never outgrows its limit
 
 
+def _small_search(selection_episodes: int, finalists: int) -> EvolveConfig:
+    """A CartPole search of a few seconds, on reward alone."""
+    return EvolveConfig(max_leaves=3, episodes=120, mu=2, lam=4, generation_episodes=4,
+                        pool_episodes=2, selection_episodes=selection_episodes,
+                        finalists=finalists, n_envs=8, use_expert=False)
+
+
 def test_a_small_search_is_deterministic_and_within_its_limit():
     task = ibt.get_task("CartPole-v1")
     source = _tree(0, 6, n_features=4, n_actions=2)
-    config = EvolveConfig(max_leaves=3, episodes=120, mu=2, lam=4, generation_episodes=4,
-                          pool_episodes=2, selection_episodes=4, finalists=3, n_envs=8,
-                          use_expert=False)
+    config = _small_search(selection_episodes=4, finalists=3)
     first = evolve([source], task, config, seed=3, progress=False)
     second = evolve([source], task, config, seed=3, progress=False)
     assert first.best.n_leaves <= 3 and first.episodes <= 120
@@ -72,9 +77,7 @@ def test_choosing_again_on_more_episodes_is_the_search_run_with_them():
     cached search equals the search run with that many selection episodes."""
     task = ibt.get_task("CartPole-v1")
     source = _tree(1, 6, n_features=4, n_actions=2)
-    config = EvolveConfig(max_leaves=3, episodes=120, mu=2, lam=4, generation_episodes=4,
-                          pool_episodes=2, selection_episodes=3, finalists=4, n_envs=8,
-                          use_expert=False)
+    config = _small_search(selection_episodes=3, finalists=4)
     short = evolve([source], task, config, seed=5, progress=False)
     direct = evolve([source], task, replace(config, selection_episodes=9), seed=5,
                     progress=False)
