@@ -658,7 +658,8 @@ def readme_block(res: Results) -> str:
           if (plus := plus_targets_markdown(res)) is not None else []),
         *(["Beyond Imitation-BT+: **Imitation-BT+S** (notebook 07) evolves the small tree's "
            "structure by return; its BTs on the anchors' protocol (1,000 final episodes), "
-           "against the best published small tree of each task at its own size:", "",
+           "against the small-BT bar of issues 22 and 26 at 12 leaves or fewer and the best "
+           "published small tree of each task at its own size above:", "",
            structure, ""]
           if (structure := structure_markdown(res)) is not None else []),
         *(["With tests that compare features: **Imitation-BT+SR** (notebook 07) runs the same "
