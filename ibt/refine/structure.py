@@ -432,8 +432,8 @@ def reselect(record: Evolution, task: Task, selection_episodes: int) -> Evolutio
     instead (the first of them the ones the search used, so a longer choice only adds
     episodes). The search's trajectory does not depend on its choice, so this is exactly the
     search run with that ``selection_episodes``, for the CPU of the choice alone, which is
-    added to the record's cost. 100 episodes (SE about 8 on LunarLander) pick among finalists
-    a few points apart with a winner's curse of up to 20 points."""
+    added to the record's cost. A longer choice pays where finalists are a few points apart
+    and the episodes' spread is wide (LunarLander)."""
     config = EvolveConfig(**{**{k: v for k, v in record.config.items()
                                 if k in EvolveConfig.__dataclass_fields__},
                              "selection_episodes": selection_episodes})
