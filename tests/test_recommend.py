@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from ibt.cli import main
+from ibt.runs.engine.agent import sb3_agent
 from ibt.runs.recommend import Budget, Candidate, choose, held_out, parse_budget
 
 pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
@@ -84,12 +85,17 @@ def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):
     from ibt.tasks.catalogue import resolve_task
 
     task = resolve_task("ToyCart-v0")
-    rec = recommend(task, "ppo", agents / "cart.zip", budget=parse_budget("smoke"),
-                    leaf_limits=(4, 8), cache_dir=tmp_path / "cache", progress=False)
+    agent = sb3_agent(task, "ppo", agents / "cart.zip")
+    rec = recommend(agent, budget=parse_budget("smoke"), leaf_limits=(8, 4), restarts=1,
+                    cache_dir=tmp_path / "cache", progress=False, full=True)
+    # smallest rung first, axis-aligned then relational at the same limit; then the searches
     assert [(c.leaf_limit, c.label) for c in rec.candidates] == [
-        (4, "distilled"), (4, "refined"), (8, "distilled"), (8, "refined"),
-        (4, "distilled, relational"), (4, "refined, relational"),
-        (8, "distilled, relational"), (8, "refined, relational")]
+        (4, "distilled"), (4, "refined"), (4, "distilled, relational"),
+        (4, "refined, relational"), (8, "distilled"), (8, "refined"),
+        (8, "distilled, relational"), (8, "refined, relational"),
+        (4, "searched"), (4, "searched, relational"), (8, "searched"),
+        (8, "searched, relational")]
+    assert all(c.leaves <= c.leaf_limit for c in rec.candidates)
     for c in rec.candidates:  # every synthesiser's BT decides as its tree
         for bt in c.bts.values():
             verify(bt, c.tree, task)
@@ -155,7 +161,7 @@ def test_the_report_is_plain_data_of_the_run(agents, tmp_path):
     from ibt.runs.recommend import as_facts, recommend
     from ibt.tasks.catalogue import resolve_task
 
-    rec = recommend(resolve_task("ToyLine-v0"), "ppo", agents / "line.zip",
+    rec = recommend(sb3_agent(resolve_task("ToyLine-v0"), "ppo", agents / "line.zip"),
                     budget=parse_budget("smoke"), leaf_limits=(4,), episodes=3,
                     cache_dir=tmp_path / "cache", progress=False)
     facts = json.loads(json.dumps(as_facts(rec)))

@@ -14,6 +14,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ibt.signals import Terminated as Terminated  # re-exported: the CLI raises it
+
 if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
     from ibt.tasks.task import Task
 
@@ -31,10 +33,6 @@ STALE_TEMP_SECONDS = 30  # hidden temp files older than this, beside an output, 
 
 class UsageError(Exception):
     """Bad input found by the command line: exit code 2 and this one-line message."""
-
-
-class Terminated(BaseException):
-    """SIGTERM, raised where the process is, so that it unwinds like Ctrl-C (exit 143)."""
 
 
 # ------------------------------------------------------------------------- input checks
@@ -77,6 +75,28 @@ LEAVES = _int_at_least(2, "leaves of a tree", 100_000)
 LABELS = _int_at_least(1, "expert labels", 10_000_000)
 ITERATIONS = _int_at_least(1, "iterations", 10_000)
 TIMESTEPS = _int_at_least(1, "timesteps", 10**10)
+MAX_NODES = _int_at_least(1, "BT nodes", 1_000_000)
+RESTARTS = _int_at_least(1, "restarts", 64)
+JOBS = _int_at_least(1, "processes", 1024)
+MAX_DURATION = 7 * 24 * 3600.0  # a week: longer budgets are typing errors
+
+
+def _duration(text: str) -> float:
+    """An argparse type: a wall-clock budget such as ``90``, ``90s``, ``10m``, ``1h30m``
+    (seconds, more than 0, at most a week)."""
+    import re
+
+    match = re.fullmatch(r"\s*(?:(\d+(?:\.\d+)?)h)?\s*(?:(\d+(?:\.\d+)?)m)?\s*"
+                         r"(?:(\d+(?:\.\d+)?)s?)?\s*", text.lower())
+    if not text.strip() or match is None or not any(match.groups()):
+        raise argparse.ArgumentTypeError(f"expected a duration such as 90s, 10m or 1h30m, got "
+                                         f"{text!r}")
+    hours, minutes, seconds = (float(g) if g else 0.0 for g in match.groups())
+    value = 3600 * hours + 60 * minutes + seconds
+    if not 0 < value <= MAX_DURATION:
+        raise argparse.ArgumentTypeError(f"a duration must be more than 0 and at most a week "
+                                         f"(168h), got {text!r}")
+    return value
 REFINE_EPISODES = _int_at_least(1, "refinement episodes", 10_000_000)
 PORT = _int_at_least(1, "a TCP port", 65_535)
 

@@ -5,6 +5,7 @@ the compute stack is imported inside each, when it runs."""
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -17,6 +18,8 @@ if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
     from ibt.tasks.task import Task
 
 from ibt.cli.checks import (
+    EXIT_INTERRUPTED,
+    EXIT_TERMINATED,
     EXPORT_SUFFIXES,
     UsageError,
     _again,
@@ -415,27 +418,45 @@ def _run_btcpp(args: argparse.Namespace) -> int:
 
 
 def _pipeline(args: argparse.Namespace) -> int:
+    from ibt.runs.engine.agent import callable_agent, sb3_agent
     from ibt.runs.recommend import recommend
     from ibt.runs.recommend_files import write_outputs
     from ibt.tasks.catalogue import resolve_task
 
     out = check_output_folder(args.output, "-o")
     task = resolve_task(args.task)
-    checkpoint = args.checkpoint
-    if checkpoint is None:
-        from ibt.experts.expert import expert_path
+    if args.algo == "callable":
+        if args.agent is None or args.checkpoint is not None:
+            raise UsageError("algo callable takes --agent MODULE:FUNCTION (and no --checkpoint)")
+        agent = callable_agent(task, args.agent)
+    else:
+        if args.agent is not None:
+            raise UsageError(f"--agent is for algo callable; a {args.algo} agent is an SB3 "
+                             "checkpoint: pass it with --checkpoint")
+        checkpoint = args.checkpoint
+        if checkpoint is None:
+            from ibt.experts.expert import expert_path
 
-        checkpoint = expert_path(task, args.algo)
-    check_input(checkpoint, "SB3 checkpoint", "pass your agent's zip with --checkpoint")
-    rec = recommend(task, args.algo, checkpoint, keep=args.keep, budget=args.budget,
-                    leaf_limits=args.leaves, seed=args.seed, episodes=args.episodes,
+            checkpoint = expert_path(task, args.algo)
+        check_input(checkpoint, "SB3 checkpoint", "pass your agent's zip with --checkpoint")
+        agent = sb3_agent(task, args.algo, checkpoint)
+    rec = recommend(agent, keep=args.keep, budget=args.budget, leaf_limits=args.leaves,
+                    seed=args.seed, episodes=args.episodes,
                     cache_dir=args.cache_dir or Path(args.output) / "cache",
-                    progress=not args.quiet, argv=args.argv, env_modules=args.env_module)
+                    progress=not args.quiet, argv=args.argv, env_modules=args.env_module,
+                    time_limit=args.time, max_nodes=args.max_nodes, restarts=args.restarts,
+                    n_jobs=args.jobs or os.cpu_count() or 1)
     write_outputs(rec, out)
     verdict = "meets" if rec.met else "MISSES"
+    stopped = {"time": f"; the --time budget ended the search after {rec.elapsed:.0f} s",
+               "interrupted": "; stopped by Ctrl-C", "terminated": "; stopped by SIGTERM"
+               }.get(rec.stopped or "", "")
     print(f"{task.name}/{args.algo}: recommended a {rec.chosen.bt_nodes}-node BT keeping "
           f"{rec.retention:.1f} % of the agent (random-normalised, {rec.episodes} held-out "
-          f"episodes); {verdict} the {100 * args.keep:.0f} % target; see {out / 'report.md'}")
+          f"episodes); {verdict} the {100 * args.keep:.0f} % target{stopped}; see "
+          f"{out / 'report.md'}")
+    if rec.stopped in ("interrupted", "terminated"):
+        return EXIT_INTERRUPTED if rec.stopped == "interrupted" else EXIT_TERMINATED
     return 0
 
 

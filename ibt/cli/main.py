@@ -47,15 +47,19 @@ from ibt.cli.checks import (
     EXIT_TERMINATED,
     EXPORT_FORMATS,
     ITERATIONS,
+    JOBS,
     LABELS,
     LEAVES,
+    MAX_NODES,
     PORT,
     POSITIVE,
     REFINE_EPISODES,
+    RESTARTS,
     SEED,
     TIMESTEPS,
     Terminated,
     UsageError,
+    _duration,
     _seconds,
 )
 from ibt.cli.commands import (
@@ -207,20 +211,36 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sleep between steps, to watch a run in Groot2")
     rb.set_defaults(func=_run_btcpp)
 
-    pl = command("pipeline", help="from an agent to a recommended BT: distil at several leaf "
-                 "limits, refine, synthesise every verified BT, evaluate on held-out episodes, "
-                 "and write bt.json, bt.xml, bt.png, front.png and report.md")
+    pl = command("pipeline", help="from an agent to a recommended BT, anytime: distil and refine "
+                 "at increasing leaf limits, search structure where the target is not kept, "
+                 "synthesise every verified BT, evaluate on held-out episodes, and write bt.json, "
+                 "bt.xml, bt.png, bt.svg, front.png and report.md")
     pl.add_argument("task", help="a registered task, any gymnasium env id, or MODULE:EnvId")
-    pl.add_argument("algo", choices=ALGOS)
+    pl.add_argument("algo", choices=(*ALGOS, "callable"),
+                    help="the agent's algorithm (an SB3 checkpoint), or callable with --agent")
     pl.add_argument("-o", "--output", required=True, metavar="DIR", help="folder to write")
     pl.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert)")
+    pl.add_argument("--agent", metavar="MODULE:FUNCTION",
+                    help="with algo callable: a function from one observation to an action "
+                    "(MODULE a .py file or an importable module)")
     pl.add_argument("--keep", type=_keep, default=0.95,
                     help="target share of the agent's random-normalised return (default 0.95)")
+    pl.add_argument("--time", type=_duration, default="10m", metavar="DURATION",
+                    help="wall-clock budget such as 90s, 10m, 1h30m; the best BT found by then "
+                    "is recommended (default 10m); a rerun with more time resumes from the cache")
+    pl.add_argument("--max-nodes", type=MAX_NODES, default=None, metavar="N",
+                    help="recommend only BTs of at most N nodes")
+    pl.add_argument("--restarts", type=RESTARTS, default=3, metavar="K",
+                    help="seeds of each structure search, chosen among on held-out episodes "
+                    "(default 3)")
+    pl.add_argument("--jobs", type=JOBS, default=None, metavar="N",
+                    help="processes for the restarts (default: the machine's cores; a Dask "
+                    "cluster when IBT_DASK_SCHEDULER holds its address)")
     pl.add_argument("--budget", type=_budget, default="1x",
-                    help="smoke (seconds), a scale of the default budget such as 2x, or "
-                    "refinement episodes per leaf limit such as 40000 (default 1x)")
+                    help="smoke (seconds), a scale of every step's episode budget such as 2x, "
+                    "or refinement episodes per tree such as 40000 (default 1x)")
     pl.add_argument("--leaves", type=_leaf_limits, default=(4, 8, 16, 32), metavar="L,L,...",
-                    help="leaf limits to distil at (default 4,8,16,32)")
+                    help="leaf limits, tried smallest first (default 4,8,16,32)")
     pl.add_argument("--episodes", type=POSITIVE, default=None,
                     help="held-out episodes per evaluation (default: 100; 5 with --budget smoke)")
     pl.add_argument("--seed", type=SEED, default=0)

@@ -1,0 +1,383 @@
+"""The method's stages for one agent, each a cached function (:mod:`ibt.runs.cache`).
+
+A stage takes the :class:`~ibt.runs.engine.agent.Agent` and plain settings and returns a tree:
+
+* :func:`distil`: the interactive loop at a leaf limit with one of three learners, ``axis``
+  (CART), ``relational`` (splits on ``w1 * x_i + w2 * x_j``) or ``box`` (a regression tree
+  whose leaves are merged into named commands, :mod:`ibt.synth.commands`);
+* :func:`refine`: refinement by return (thresholds, leaves, pruning; commands' values too);
+* :func:`search`: the structure search by return (Imitation-BT+S, or +SR with relational
+  tests), ``restarts`` seeds mapped over cores or a Dask cluster
+  (:func:`ibt.runs.engine.parallel.parallel_map`), one of them chosen on held-out episodes of
+  its own (never the final ones), then polished;
+* :func:`measure`: every registered synthesiser's verified BT of a tree, and the tree's
+  returns on a block of held-out episodes.
+
+Keys are the project's: the kinds and parameters of the grid's and the front's homes, with
+the agent's digest (``expert_sha256``: a checkpoint's bytes, or a callable's module and name)
+wherever the agent decides what a stage computes. Budgets are in episodes, never seconds, so a
+cached result does not depend on the machine.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ibt.evaluate.rollouts import FINAL_SEED_BASE, rollout, selection_seeds
+from ibt.profiles import Config
+from ibt.runs.cache import load_or_compute
+from ibt.runs.engine.agent import Agent
+
+LEARNERS = ("axis", "relational", "box")
+#: held-out selection episodes that choose among a search's restarts (the run's block of
+#: 10,000 seeds: the distillation's choice uses the first, refinement's 5,000 and up, the
+#: search's own choice 7,000 and up)
+RESTART_CHOICE_OFFSET = 8_500
+SEARCHED = "imitation-bt+s"  # the polish's source method: ibt.runs.front.STRUCTURE
+SEARCHED_REL = "imitation-bt+sr"  # ibt.runs.relational_search.METHOD
+
+
+@dataclass
+class Returns:
+    """Episode returns of one policy on a block of held-out episodes (consecutive seeds)."""
+
+    returns: list[float]
+    first_seed: int
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.returns))
+
+    @property
+    def std(self) -> float:
+        return float(np.std(self.returns))
+
+
+def held_out(n: int, block: int) -> list[int]:
+    """Block 0: the choice episodes (the final-evaluation seeds); block 1: confirmation."""
+    return [FINAL_SEED_BASE + block * n + i for i in range(n)]
+
+
+def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: list[int]
+               ) -> Returns:
+    """A policy's returns on ``seeds`` (consecutive), cached under ``what`` (``bt``: a BT's
+    digest, ``tree``: a tree's, else an agent's or the random policy's identity)."""
+    params = {"task": task.name, "episodes": len(seeds), "first_seed": seeds[0], **what}
+
+    def compute() -> dict[str, Any]:
+        return {"returns": [float(r) for r in rollout(task, act(), seeds).returns]}
+
+    kind = "bt-eval" if "bt" in what else "tree-eval" if "tree" in what else "expert-eval"
+    doc = load_or_compute(kind, params, compute, cache_dir=cfg.cache_dir, codec="json",
+                          refresh=cfg.refresh)
+    return Returns(list(doc["returns"]), seeds[0])
+
+
+def doc_digest(doc: Any) -> str:
+    """The identity of a plain-data document (a command tree's arrays)."""
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def tree_key(tree: Any) -> str:
+    """The identity of any tree a stage returns (classifier, relational or command tree)."""
+    from ibt.refine.commands import CommandArrays
+    from ibt.runs.grid import tree_digest
+
+    return doc_digest(tree.to_doc()) if isinstance(tree, CommandArrays) else tree_digest(tree)
+
+
+def bt_digest(bt: Any) -> str:
+    return hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]
+
+
+def leaves_of(tree: Any) -> int:
+    from ibt.refine.commands import CommandArrays
+
+    return int(tree.n_leaves if isinstance(tree, CommandArrays) else tree.get_n_leaves())
+
+
+# --- distil -----------------------------------------------------------------------------------
+
+
+def distil(cfg: Config, agent: Agent, leaves: int, seed: int, learner: str) -> Any:
+    """The distilled tree at ``leaves``: a classifier (``axis``, ``relational``) or, on a Box
+    task, command arrays (``box``: regression tree, then its leaves merged into commands)."""
+    if learner == "box":
+        return _box_commands(cfg, agent, leaves, seed)
+    from ibt.distill.loop import distill
+    from ibt.runs.pipeline import distill_config
+    from ibt.runs.relational import METHOD, learner_params
+
+    relational = learner == "relational"
+    dcfg = (distill_config(cfg, agent.task, METHOD, max_leaf_nodes=leaves) if relational
+            else distill_config(cfg, agent.task, max_leaf_nodes=leaves))
+    params = {"task": agent.task.name, "algo": agent.algo, "seed": seed,
+              "config": dcfg.as_params(),
+              **({"learner": learner_params()} if relational else {}),
+              "expert_sha256": agent.digest}
+
+    def compute() -> Any:
+        return distill(agent.task, agent.load(), dcfg, seed, progress=cfg.progress)
+
+    return load_or_compute("distill-rel" if relational else "distill", params, compute,
+                           cache_dir=cfg.cache_dir, codec="distillation",
+                           refresh=cfg.refresh).best_tree
+
+
+def box_method(agent: Agent) -> str:
+    """Critic-weighted imitation for SAC and TD3 agents (their critic scores any action);
+    plain DAgger for the others."""
+    return "imitation-bt" if agent.algo in ("sac", "td3") else "dagger"
+
+
+def _box_commands(cfg: Config, agent: Agent, leaves: int, seed: int) -> Any:
+    """The regression tree's leaves merged into the fewest named commands that keep its
+    held-out return (kinds ``box-distill`` and ``box-commands``)."""
+    from ibt.distill.continuous import distill_box, regressor_doc, regressor_from_doc
+    from ibt.refine.commands import CommandArrays
+    from ibt.runs.continuous import BOX_SELECTION_EPISODES, COMMAND_TOLERANCE, box_config
+    from ibt.synth.commands import DECIMALS, choose_commands
+
+    task = agent.task
+    config = box_config(cfg, task, box_method(agent), leaves)
+    params = {"task": task.name, "algo": agent.algo, "seed": seed, "config": config.as_params(),
+              "expert_sha256": agent.digest}
+
+    def fit() -> dict[str, Any]:
+        run = distill_box(task, agent.load(), config, seed, progress=cfg.progress)
+        return {"iterations": run.iterations, "best_index": run.best_index,
+                "tree": regressor_doc(run.best_tree), "wall_seconds": run.wall_seconds}
+
+    run = load_or_compute("box-distill", params, fit, cache_dir=cfg.cache_dir, codec="json",
+                          refresh=cfg.refresh)
+    n = min(BOX_SELECTION_EPISODES, cfg.selection_episodes)
+    merge = {"task": task.name, "algo": agent.algo, "seed": seed,
+             "tree": doc_digest(run["tree"]), "episodes": n, "tolerance": COMMAND_TOLERANCE,
+             "decimals": DECIMALS, "expert_sha256": agent.digest}
+
+    def choose() -> dict[str, Any]:
+        seeds = selection_seeds(n, seed, offset=1)
+        scale = rollout(task, agent.load().act, seeds).mean - rollout(
+            task, agent.random_act(seed), seeds).mean
+        chosen, rows = choose_commands(regressor_from_doc(run["tree"]), task, seeds,
+                                       scale=scale, tolerance=COMMAND_TOLERANCE, seed=seed)
+        return {"arrays": CommandArrays.from_command_tree(chosen).to_doc(), "rows": rows,
+                "scale": scale}
+
+    doc = load_or_compute("box-commands", merge, choose, cache_dir=cfg.cache_dir, codec="json",
+                          refresh=cfg.refresh)
+    return CommandArrays.from_doc(doc["arrays"])
+
+
+# --- refine -----------------------------------------------------------------------------------
+
+
+def refine_config(cfg: Config, task: Any, scale: float, episodes: int | None,
+                  commands: bool = False) -> Any:
+    """The task's refinement budget scaled by ``scale`` (or ``episodes`` per tree); CMA-ES
+    stages only for a command tree (its values are tuned with its thresholds)."""
+    from ibt.runs.continuous import box_refine_config
+    from ibt.runs.front import refine_config as front_config
+
+    config = box_refine_config(cfg, task) if commands else front_config(cfg, task)
+    total = episodes or max(10, round(config.episodes * scale))
+    generations = max(config.cma_generations,
+                      math.ceil(config.cma_generations * total / config.episodes))
+    return replace(config, episodes=total, cma_generations=generations)
+
+
+def refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float = 1.0,
+           episodes: int | None = None) -> Any:
+    """``tree`` refined by return (kinds ``refine``, ``refine-rel``, ``box-refine``)."""
+    from ibt.refine.commands import CommandArrays
+
+    task = agent.task
+    if isinstance(tree, CommandArrays):
+        from ibt.refine.commands import CommandRefinement, refine_commands
+        from ibt.synth.commands import DECIMALS
+
+        config = refine_config(cfg, task, scale, episodes, commands=True)
+        params = {"task": task.name, "algo": agent.algo, "seed": seed,
+                  "tree": doc_digest(tree.to_doc()), "config": config.as_params(),
+                  "decimals": DECIMALS}
+
+        def compute() -> dict[str, Any]:
+            return refine_commands(tree, task, config, seed, decimals=DECIMALS,
+                                   progress=cfg.progress).to_doc()
+
+        doc = load_or_compute("box-refine", params, compute, cache_dir=cfg.cache_dir,
+                              codec="json", refresh=cfg.refresh)
+        return CommandRefinement.from_doc(doc).best
+    from ibt.distill.relational import RelationalTreeClassifier
+    from ibt.refine.relational import best_tree
+    from ibt.runs.front import refinement_cached
+    from ibt.runs.relational import METHOD as RELATIONAL
+
+    source = RELATIONAL if isinstance(tree, RelationalTreeClassifier) else "imitation-bt"
+    return best_tree(refinement_cached(cfg, task, agent.algo, seed, source, tree,
+                                       refine_config(cfg, task, scale, episodes)))
+
+
+# --- structure search -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SearchInfo:
+    """How a search's restart was chosen: its seeds, the held-out episodes and their means."""
+
+    seeds: tuple[int, ...]
+    choice_episodes: int
+    choice_means: tuple[float, ...]
+    chosen: int  # index into seeds
+
+
+def search_config(cfg: Config, task: Any, leaves: int, scale: float) -> Any:
+    """The task's structure-search budget at ``leaves`` (:func:`ibt.runs.search.evolve_config`),
+    its episodes scaled by ``scale`` (not under ``smoke``)."""
+    from ibt.runs.search import evolve_config
+
+    config = evolve_config(cfg, task, leaves)
+    if cfg.profile != "smoke" and scale != 1.0:
+        per_generation = (config.mu + config.lam) * config.generation_episodes
+        config = replace(config, episodes=max(round(config.episodes * scale),
+                                              per_generation + config.pool_episodes))
+    return config
+
+
+def evolve_one(cfg: Config, agent: Agent, sources: list[Any], config: Any, seed: int,
+               relational: bool, env_modules: tuple[str, ...] = ()) -> Any:
+    """One restart of the structure search (kinds ``evolve``, ``evolve-rel``); runs in a worker
+    process too (the user's environment modules are imported there first)."""
+    from ibt.runs.grid import tree_digest
+
+    _import_modules(env_modules)
+    task = agent.task
+    params: dict[str, Any] = {"task": task.name, "algo": agent.algo, "seed": seed,
+                              "sources": [tree_digest(t) for t in sources],
+                              "config": config.as_params(), "expert_sha256": agent.digest}
+    if relational:
+        from ibt.bt.linear import DEFAULT_WEIGHTS
+        from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
+        from ibt.refine.tree_arrays import TreeArrays
+
+        params.update({"weights": [list(w) for w in DEFAULT_WEIGHTS],
+                       "candidate_episodes": CANDIDATE_EPISODES})
+
+        def compute() -> Any:
+            return evolve_relational([TreeArrays.from_sklearn(t) for t in sources], task,
+                                     config, seed, expert=agent.load(), progress=cfg.progress)
+    else:
+        from ibt.refine.structure import evolve
+
+        def compute() -> Any:
+            return evolve(sources, task, config, seed, expert=agent.load(),
+                          progress=cfg.progress)
+
+    return load_or_compute("evolve-rel" if relational else "evolve", params, compute,
+                           cache_dir=cfg.cache_dir, codec="evolution", refresh=cfg.refresh)
+
+
+def _import_modules(modules: tuple[str, ...]) -> None:
+    from ibt.tasks.catalogue import import_env_module
+
+    for module in modules:
+        import_env_module(module)
+
+
+def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int, *,
+           restarts: int = 1, relational: bool = False, scale: float = 1.0,
+           n_jobs: int = 1, env_modules: tuple[str, ...] = ()) -> tuple[Any, SearchInfo]:
+    """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
+    ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes, the
+    best polished (CMA-ES on thresholds, then free pruning) and returned."""
+    from ibt.evaluate.policies import TreePolicy
+    from ibt.refine.relational import best_tree
+    from ibt.runs.engine.parallel import parallel_map
+    from ibt.runs.front import refinement_cached
+    from ibt.runs.search import polish_config
+
+    task = agent.task
+    config = search_config(cfg, task, leaves, scale)
+    seeds = tuple(seed + r for r in range(restarts))
+    quiet = replace(cfg, progress=cfg.progress and restarts == 1)
+    records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
+                                         env_modules) for s in seeds], n_jobs=n_jobs)
+    if relational:
+        from ibt.refine.relational_structure import winner
+
+        trees = [winner(record) for record in records]
+    else:
+        trees = [record.best_tree for record in records]
+    choice = selection_seeds(config.selection_episodes, seed, offset=RESTART_CHOICE_OFFSET)
+    means = tuple(returns_of(cfg, task, {"tree": tree_key(t)},
+                             lambda t=t: TreePolicy(task, t).act, choice).mean
+                  for t in trees)
+    chosen = max(range(len(trees)), key=lambda i: (means[i], -leaves_of(trees[i]), -i))
+    polish = refinement_cached(cfg, task, agent.algo, seeds[chosen],
+                               SEARCHED_REL if relational else SEARCHED, trees[chosen],
+                               polish_config(cfg, config))
+    return best_tree(polish), SearchInfo(seeds, len(choice), means, chosen)
+
+
+# --- measure ----------------------------------------------------------------------------------
+
+
+def synthesise(cfg: Config, agent: Agent, tree: Any, seed: int) -> dict[str, Any]:
+    """Every registered synthesiser's BT of ``tree`` (each verified against it, cached): a
+    command tree's BTs carry its command table."""
+    from ibt.refine.commands import CommandArrays
+    from ibt.synth.registry import SYNTHESISERS, front_synthesisers
+
+    task = agent.task
+    commands = isinstance(tree, CommandArrays)
+    names = front_synthesisers() if commands else tuple(SYNTHESISERS)
+    bts = {}
+    for name in names:
+        synthesiser = SYNTHESISERS[name]
+        params: dict[str, Any] = {"task": task.name, "algo": agent.algo, "method": name,
+                                  "seed": seed, "source_method": "pipeline",
+                                  "tree": tree_key(tree)}
+        if synthesiser.version is not None:
+            params["method_version"] = synthesiser.version_number()
+
+        def compute(name: str = name, synthesiser: Any = synthesiser) -> dict[str, Any]:
+            if commands:
+                from ibt.runs.continuous import command_bt
+
+                bt = command_bt(tree, task, name)  # every synthesiser verifies
+                return {"row": {"method": name, "nodes": bt.node_count, "equivalent": True},
+                        "bt": bt}
+            from ibt.synth.imitation import verify
+
+            bt = synthesiser(tree, task).bt
+            checked = verify(bt, tree, task)  # raises NotEquivalentError: nothing is cached
+            return {"row": {"method": name, "nodes": bt.node_count, "equivalent": True,
+                            "states_checked": checked}, "bt": bt}
+
+        bts[name] = load_or_compute("synthesis", params, compute, cache_dir=cfg.cache_dir,
+                                    codec="synthesis", refresh=cfg.refresh)["bt"]
+    return bts
+
+
+def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: list[int]
+            ) -> Returns:
+    """The tree's returns on ``seeds`` (every BT of it decides as it does); a command tree is
+    rolled out through its smallest BT (the command table is the BT's)."""
+    from ibt.evaluate.policies import TreePolicy
+    from ibt.refine.commands import CommandArrays
+
+    task = agent.task
+    if isinstance(tree, CommandArrays):
+        from ibt.synth.commands import CommandBTPolicy
+
+        bt = min(bts.values(), key=lambda b: b.node_count)
+        return returns_of(cfg, task, {"bt": bt_digest(bt)},
+                          lambda: CommandBTPolicy(task, bt).act, seeds)
+    return returns_of(cfg, task, {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act,
+                      seeds)
