@@ -21,7 +21,7 @@ import pandas as pd
 from joblib import Parallel, delayed, parallel_config
 from tqdm import tqdm
 
-from ibt.distill.loop import METHODS, tree_signature
+from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
 from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import (
@@ -37,6 +37,8 @@ from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.report.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
 from ibt.runs.cache import load_or_compute
+from ibt.runs.engine.stages import bt_digest as _bt_digest
+from ibt.runs.engine.stages import tree_digest
 from ibt.runs.pipeline import distill_cached
 from ibt.synth.registry import SYNTHESISERS, get_synthesiser
 from ibt.tasks.catalogue import get_task
@@ -103,20 +105,6 @@ def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, flo
 
     return load_or_compute("expert-eval", params, compute, cache_dir=cfg.cache_dir,
                            codec="json", refresh=cfg.refresh)
-
-
-def _bt_digest(bt: Any) -> str:
-    """A BT's identity in cache keys: the digest of its JSON document."""
-    import hashlib
-
-    return hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]
-
-
-def tree_digest(tree: Any) -> str:
-    """A decision tree's identity in cache keys: the digest of :func:`tree_signature`."""
-    import hashlib
-
-    return hashlib.sha256(tree_signature(tree)).hexdigest()[:16]
 
 
 def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
