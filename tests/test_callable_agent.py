@@ -171,9 +171,9 @@ def _one_line_naming(err: pytest.ExceptionInfo, spec: str) -> None:
 
 LOAD_ERRORS = [  # (module source or None, spec tail, error type, words of the message)
     (None, "agent.py", ValueError, "not MODULE:FUNCTION"),
-    (RULE, "agent.py:act()", ValueError, "not a (dotted) Python name"),
-    (None, "missing.py:act", FileNotFoundError, "no file"),
-    (None, "", ValueError, "not a Python source file"),  # the folder itself
+    (RULE, "agent.py:act()", ValueError, "is not MODULE:FUNCTION"),
+    (None, "missing.py:act", FileNotFoundError, "is missing"),
+    (None, "", ValueError, "is not a file"),  # the folder itself
     ("import numpy\nraise RuntimeError('no model\\nfile')\n", "agent.py:act", ValueError,
      "RuntimeError: no model file"),
     ("import sys\nsys.exit(3)\n", "agent.py:act", ValueError, "SystemExit"),
@@ -183,8 +183,8 @@ LOAD_ERRORS = [  # (module source or None, spec tail, error type, words of the m
     (RULE, "agent.py:act.inner.deeper", ValueError, "has no attribute 'inner'"),
     ("act = 3\n", "agent.py:act", ValueError, "is a int, not a callable"),
     (RULE + "act.q_values = act\nact.action_probabilities = act\n", "agent.py:act", ValueError,
-     "at most one"),
-    (RULE + "act.q_values = 'high'\n", "agent.py:act", ValueError, "not a callable"),
+     "give at most one"),
+    (RULE + "act.q_values = 'high'\n", "agent.py:act", ValueError, "a callable of the obs"),
 ]
 
 
@@ -199,15 +199,15 @@ def test_every_load_failure_is_one_line_naming_the_spec(tmp_path, source, tail, 
 
 
 def test_module_names_that_do_not_import_are_one_line(tmp_path):
-    for spec, words in (("no_such_agent_module:act", "no module named"),
-                        ("not a module!:act", "neither a .py file"),
-                        (".:act", "neither a .py file")):
+    for spec, words in (("no_such_agent_module:act", "No module named"),
+                        ("not a module!:act", "is not MODULE:FUNCTION"),
+                        (".:act", "is not MODULE:FUNCTION")):
         with pytest.raises(ValueError, match=words) as err:
             load_callable_agent(CARTPOLE, spec)
         _one_line_naming(err, spec)
     with pytest.raises(ValueError, match="no module named"):
         agent_digest("no_such_agent_module:act")
-    with pytest.raises(FileNotFoundError, match="no file"):
+    with pytest.raises(FileNotFoundError, match="is missing"):
         agent_digest(f"{tmp_path}/missing.py:act")
 
 
