@@ -8,9 +8,11 @@ import textwrap
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ibt.distill.continuous import BoxDistillConfig, box_tree_policy, distill_box
-from ibt.distill.loop import DistillConfig, distill, learner_policy
+from ibt.distill.loop import DistillConfig, distill, learner_policy, tree_signature
 from ibt.evaluate.policies import CompiledTree
 from ibt.evaluate.rollouts import rollout
 from ibt.experts.callable_agent import (
@@ -297,6 +299,8 @@ def test_distillation_of_a_rule_imitates_it(tmp_path, weighted):
     agreement = (tree.predict(CARTPOLE.features(visited)) == rule(visited)).mean()
     assert agreement >= 0.9, agreement
     assert rollout(CARTPOLE, learner_policy(CARTPOLE, tree), range(5)).mean >= 150
+    again = distill(CARTPOLE, agent, config, seed=0, progress=False)  # the same seed: the same
+    assert [tree_signature(t) for t in again.trees] == [tree_signature(t) for t in record.trees]
 
 
 def test_box_distillation_of_a_controller_imitates_it(tmp_path):
@@ -311,3 +315,47 @@ def test_box_distillation_of_a_controller_imitates_it(tmp_path):
     target = agent.act(visited)[:, 0]
     error = np.abs(box_tree_policy(PENDULUM, record.best_tree)(visited)[:, 0] - target).mean()
     assert error < 0.4 * np.abs(target - target.mean()).mean(), error
+
+
+def test_the_structure_search_takes_a_callable_agent_as_its_expert(tmp_path):
+    from ibt.refine.structure import _Mutator, evolve
+    from ibt.tasks.settings import EvolveConfig
+
+    source = RULE + "act.q_values = lambda obs: [0.0, obs[2] + 0.1 * obs[3]]\n"
+    agent = load_callable_agent(CARTPOLE, f"{write(tmp_path, source)}:act")
+    x = np.random.default_rng(0).normal(scale=0.1, size=(200, 4)).astype(np.float32)
+    mutator = _Mutator(CARTPOLE, EvolveConfig(max_leaves=4, leaf_rule="score"),
+                       np.random.default_rng(0), agent)
+    mutator.refresh(x)
+    assert mutator.scores.shape == (200, 2)
+    assert np.array_equal(mutator.labels, agent.act(CARTPOLE.observations(mutator.pool)))
+    config = EvolveConfig(max_leaves=3, episodes=80, mu=2, lam=4, generation_episodes=4,
+                          pool_episodes=2, selection_episodes=2, finalists=2, n_envs=8)
+    stump = DistillConfig.for_task(CARTPOLE, method="bc", n_iterations=1,
+                                   labels_per_iteration=200, selection_episodes=1,
+                                   max_leaf_nodes=2)
+    tree = distill(CARTPOLE, agent, stump, seed=0, progress=False).best_tree
+    found = evolve([tree], CARTPOLE, config, seed=0, expert=agent, progress=False)
+    assert found.best.n_leaves <= 3
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.tuples(*[st.floats(-3, 3)] * 3), min_size=1, max_size=8))
+def test_batched_and_per_observation_agents_agree_inside_the_box(tmp_path_factory, rows):
+    folder = tmp_path_factory.mktemp("law")
+    path = write(folder, """
+import numpy as np
+
+def one(obs):
+    return -2.0 * obs[1] - 0.5 * obs[2]
+
+def many(obs):
+    return -2.0 * obs[:, 1] - 0.5 * obs[:, 2]
+
+many.batched = True
+""")
+    obs = np.array(rows, dtype=np.float32)
+    one = load_callable_agent(PENDULUM, f"{path}:one").act(obs)
+    many = load_callable_agent(PENDULUM, f"{path}:many").act(obs)
+    assert np.array_equal(one, many)
+    assert (np.abs(one) <= 2.0).all() and one.shape == (len(obs), 1)
