@@ -269,8 +269,9 @@ def test_bad_companion_answers_are_one_line(tmp_path, companion, answer, words):
     assert "observation 0" in str(err.value)
 
 
-def test_a_batched_agent_must_answer_one_row_per_observation(tmp_path):
-    path = write(tmp_path, "def act(obs):\n    return [0]\nact.batched = True\n")
+@pytest.mark.parametrize("answer", ["[0]", "3", "None", "[[0, 1], [1], 0]"])
+def test_a_batched_agent_must_answer_one_row_per_observation(tmp_path, answer):
+    path = write(tmp_path, f"def act(obs):\n    return {answer}\nact.batched = True\n")
     spec = f"{path}:act"
     with pytest.raises(ValueError, match="one row per observation") as err:
         load_callable_agent(CARTPOLE, spec).act(OBS)

@@ -41,7 +41,6 @@ from ibt.tasks.task import Task
 VERSION = 1
 ALGO = "callable"  #: the ``algo`` of every callable agent (records, cache keys)
 PROB_FLOOR = 1e-12  #: probabilities below this count as it in log p (finite weights)
-COMPANIONS = ("q_values", "action_probabilities")
 
 
 def parse_spec(spec: str) -> tuple[str, str, bool]:
@@ -69,9 +68,8 @@ def _failed(spec: str, doing: str, err: BaseException, fix: str) -> ValueError:
     return ValueError(f"agent {spec!r}: {doing} raised {text[:300]}; {fix}")
 
 
-@functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=32)  # each version of a file (mtime, size) is executed once
 def _load_file(path: str, _mtime: int, _size: int) -> Any:
-    """The module of ``path``, executed once per version of the file (mtime and size)."""
     name = "_ibt_agent_" + hashlib.sha256(path.encode()).hexdigest()[:16]
     loader_spec = importlib.util.spec_from_file_location(name, path)
     if loader_spec is None or loader_spec.loader is None:
@@ -115,8 +113,8 @@ def load_callable_agent(task: Task, spec: str) -> CallableExpert:
             target = getattr(target, part)
         except Exception as err:
             where = ".".join([module_name, *function.split(".")[:depth]])
-            raise _failed(spec, f"looking up {part!r} in {where}", err, "check the name after "
-                          "the colon") from err
+            raise ValueError(f"agent {spec!r}: {where} has no attribute {part!r} ("
+                             f"{type(err).__name__}); check the name after the colon") from err
     if not callable(target):
         raise ValueError(f"agent {spec!r}: {function} is a {type(target).__name__}, not a "
                          "callable; name a function mapping an observation to an action")
@@ -158,7 +156,7 @@ class CallableExpert(Expert):
         self.algo, self.model, self.obs_norm = ALGO, None, None
         self.continuous, self.n_actions = task.continuous, task.n_actions
         self.batched = getattr(function, "batched", False) is True
-        given = {name: getattr(function, name) for name in COMPANIONS
+        given = {name: getattr(function, name) for name in ("q_values", "action_probabilities")
                  if getattr(function, name, None) is not None}
         if len(given) > 1 or (given and self.continuous) or not all(map(callable, given.values())):
             raise ValueError(f"agent {spec!r} defines {' and '.join(given)}: give at most one, "
@@ -177,10 +175,14 @@ class CallableExpert(Expert):
                 raise _failed(self.spec, f"{what} on {where}", err, "fix the agent") from err
         if not self.batched:
             return answers
-        if np.ndim(answers[0]) == 0 or len(answers[0]) != len(obs):
+        try:  # a number or a ragged answer is no batch either
+            rows = list(answers[0]) if np.ndim(answers[0]) else []
+        except (TypeError, ValueError):
+            rows = []
+        if len(rows) != len(obs):
             raise _bad(self.spec, what, f"a batch of {len(obs)}", answers[0],
                        "one row per observation (the agent is batched)")
-        return list(np.asarray(answers[0]))
+        return rows
 
     def _floats(self, answers: list[Any], what: str, width: int, expected: str,
                 scalar_ok: bool = False, probabilities: bool = False) -> np.ndarray:
@@ -191,8 +193,7 @@ class CallableExpert(Expert):
                 row = np.asarray(value, dtype=np.float64)
             except (TypeError, ValueError):
                 row = np.full(0, np.nan)
-            ok = row.shape in ((width,), () if scalar_ok else (width,))
-            ok = ok and bool(np.isfinite(row).all())
+            ok = row.shape in ((width,), () if scalar_ok else (width,)) and np.isfinite(row).all()
             if ok and probabilities:
                 ok = bool((row >= 0).all()) and abs(row.sum() - 1.0) <= 1e-3
             if not ok:
@@ -245,5 +246,4 @@ class CallableExpert(Expert):
 
     def action_loss(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Not available: a callable agent has no critic to price another action."""
-        raise TypeError(f"agent {self.spec!r} has no critic: action_loss needs an SB3 SAC, TD3 "
-                        "or PPO expert")
+        raise TypeError(f"agent {self.spec!r} has no critic; action_loss needs an SB3 expert")
