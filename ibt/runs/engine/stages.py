@@ -311,35 +311,58 @@ def search_config(cfg: Config, task: Any, leaves: int, scale: float) -> Any:
     return config
 
 
+def evolve_key(agent: Agent, sources: list[Any], config: Any, seed: int, relational: bool, *,
+               scaled_weights: bool = False, agent_in_key: bool = True
+               ) -> tuple[str, dict[str, Any]]:
+    """The kind and key parameters of one structure search (see :func:`evolve_one`)."""
+    params: dict[str, Any] = {"task": agent.task.name, "algo": agent.algo, "seed": seed,
+                              "sources": [tree_digest(t) for t in sources],
+                              "config": config.as_params()}
+    if agent_in_key:
+        params["expert_sha256"] = agent.digest
+    if not relational:
+        return "evolve", params
+    from ibt.bt.linear import DEFAULT_WEIGHTS
+    from ibt.refine.relational_structure import CANDIDATE_EPISODES
+
+    params.update({"weights": [list(w) for w in DEFAULT_WEIGHTS],
+                   "candidate_episodes": CANDIDATE_EPISODES,
+                   **({"weight_scale": "spread"} if scaled_weights else {})})
+    return "evolve-rel", params
+
+
 def evolve_one(cfg: Config, agent: Agent, sources: list[Any], config: Any, seed: int,
-               relational: bool, env_modules: tuple[str, ...] = ()) -> Any:
+               relational: bool, env_modules: tuple[str, ...] = (), *,
+               scaled_weights: bool = False, agent_in_key: bool = True) -> Any:
     """One restart of the structure search (kinds ``evolve``, ``evolve-rel``); runs in a worker
-    process too (the user's environment modules are imported there first)."""
+    process too (the user's environment modules are imported there first).
+
+    ``scaled_weights``: relational candidates' weights scaled to each pair's spreads.
+    ``agent_in_key``: the agent's digest is part of the key (the pipeline's searches: its small
+    seed trees may coincide for two agents); the committed studies' keys leave it out, as they
+    were made: their seed trees, distilled at the task's budget from the agent, identify it."""
     _import_modules(env_modules)
     task = agent.task
-    params: dict[str, Any] = {"task": task.name, "algo": agent.algo, "seed": seed,
-                              "sources": [tree_digest(t) for t in sources],
-                              "config": config.as_params(), "expert_sha256": agent.digest}
-    if relational:
-        from ibt.bt.linear import DEFAULT_WEIGHTS
-        from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
-        from ibt.refine.tree_arrays import TreeArrays
+    kind, params = evolve_key(agent, sources, config, seed, relational,
+                              scaled_weights=scaled_weights, agent_in_key=agent_in_key)
 
-        params.update({"weights": [list(w) for w in DEFAULT_WEIGHTS],
-                       "candidate_episodes": CANDIDATE_EPISODES})
+    def expert() -> Any:
+        return agent.load() if config.use_expert else None
 
-        def compute() -> Any:
+    def compute() -> Any:
+        if relational:
+            from ibt.refine.relational_structure import evolve_relational
+            from ibt.refine.tree_arrays import TreeArrays
+
             return evolve_relational([TreeArrays.from_sklearn(t) for t in sources], task,
-                                     config, seed, expert=agent.load(), progress=cfg.progress)
-    else:
+                                     config, seed, expert=expert(),
+                                     scaled_weights=scaled_weights, progress=cfg.progress)
         from ibt.refine.structure import evolve
 
-        def compute() -> Any:
-            return evolve(sources, task, config, seed, expert=agent.load(),
-                          progress=cfg.progress)
+        return evolve(sources, task, config, seed, expert=expert(), progress=cfg.progress)
 
-    return load_or_compute("evolve-rel" if relational else "evolve", params, compute,
-                           cache_dir=cfg.cache_dir, codec="evolution", refresh=cfg.refresh)
+    return load_or_compute(kind, params, compute, cache_dir=cfg.cache_dir, codec="evolution",
+                           refresh=cfg.refresh)
 
 
 def _import_modules(modules: tuple[str, ...]) -> None:
