@@ -133,7 +133,9 @@ def full_ladder(case: Case, cache: Path, chosen_nodes: int) -> dict[str, object]
 
     checkpoint = ROOT / case.checkpoint if case.checkpoint else expert_path(task, case.algo)
     start = time.perf_counter()
+    modules = (case.env_module,) if case.env_module else ()
     rec = recommend(sb3_agent(task, case.algo, checkpoint), cache_dir=cache, progress=False,
+                    env_modules=modules,
                     full=True, time_limit=None, n_jobs=os.cpu_count() or 1)
     keeping = [c.bt_nodes for c in rec.candidates if c.retention >= 100 * rec.keep]
     return {"full_wall_s": round(time.perf_counter() - start, 1),

@@ -76,6 +76,8 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                    "refine/structure.py", "distill/relational.py", "bt/linear.py",
                    "runs/relational_search.py", "runs/search.py", *_AGENTS, *_ENGINE,
                    *_TREES, *_ROLLOUT),
+    "returns": ("runs/engine/stages.py", *_AGENTS, "experts/training.py", *_TREES, *_SYNTH,
+                "synth/commands.py", *_ROLLOUT),
     "evolve-select": ("refine/relational_structure.py", "refine/relational.py",
                       "refine/structure.py", "distill/relational.py", "bt/linear.py",
                       "runs/relational_search.py", *_TREES, *_ROLLOUT),

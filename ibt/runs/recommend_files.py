@@ -159,10 +159,11 @@ def ladder_text(rec: Recommendation) -> list[str]:
         lines += [f"**Stopped early**: {how.get(ladder.stopped, ladder.stopped)} after "
                   f"{rec.elapsed:.0f} s; this report covers the {len(ladder.steps)} steps done "
                   "(the recommendation is the best BT among them, confirmed as below). Left "
-                  f"undone: {', '.join(ladder.skipped) or 'nothing'}. A rerun with a longer "
-                  "`--time` resumes from the cache.", ""]
+                  f"undone: {', '.join(ladder.skipped) or 'nothing'}. Where a run stops depends "
+                  "on the machine's speed; a rerun with a longer `--time` resumes from the "
+                  "cache and, once the ladder finishes, gives the same files.", ""]
     else:
-        lines += [f"The ladder finished in {rec.elapsed:.0f} s: leaf limits smallest first, "
+        lines += ["The ladder finished within its time budget: leaf limits smallest first, "
                   "distilled then refined trees at each (axis-aligned, then relational), and the "
                   "structure search by return only below the first limit whose best BT kept the "
                   "target (at every limit when none did).", ""]

@@ -68,14 +68,14 @@ def held_out(n: int, block: int) -> list[int]:
 def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: list[int]
                ) -> Returns:
     """A policy's returns on ``seeds`` (consecutive), cached under ``what`` (``bt``: a BT's
-    digest, ``tree``: a tree's, else an agent's or the random policy's identity)."""
+    digest, ``tree``: a tree's, else an agent's or the random policy's identity) as the kind
+    ``returns``: every episode's return, where the grid's evaluation kinds keep summaries."""
     params = {"task": task.name, "episodes": len(seeds), "first_seed": seeds[0], **what}
 
     def compute() -> dict[str, Any]:
         return {"returns": [float(r) for r in rollout(task, act(), seeds).returns]}
 
-    kind = "bt-eval" if "bt" in what else "tree-eval" if "tree" in what else "expert-eval"
-    doc = load_or_compute(kind, params, compute, cache_dir=cfg.cache_dir, codec="json",
+    doc = load_or_compute("returns", params, compute, cache_dir=cfg.cache_dir, codec="json",
                           refresh=cfg.refresh)
     return Returns(list(doc["returns"]), seeds[0])
 
