@@ -140,7 +140,7 @@ def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,
         for method in synthesisers:
             bts[method] = command_bt(arrays, spec, method)
             out[f"nodes_{method.replace('-', '_')}"] = bts[method].node_count
-        smallest = min(synthesisers, key=lambda m: (bts[m].node_count, synthesisers.index(m)))
+        smallest = stages.smallest_bt(bts)
         text = bts[smallest].to_json()
         policy = CommandBTPolicy(spec, BehaviorTree.from_json(text))
         result = rollout(spec, policy.act, final_seeds(n))

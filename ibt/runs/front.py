@@ -40,6 +40,7 @@ from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
 from ibt.refine.by_return import RefineConfig, Refinement, refine
 from ibt.runs.cache import load_or_compute
+from ibt.runs.engine.stages import smallest_bt
 from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.runs.pipeline import distill_cached
 from ibt.synth.registry import front_synthesisers, get_synthesiser
@@ -238,7 +239,7 @@ def bt_sizes(cfg: Config, task: str | Task, tree: Any) -> dict[str, Any]:
             out[f"conditions_{key}"] = bt.node_types()["condition"]
             out[f"seconds_{key}"] = round(time.perf_counter() - start, 3)
             bts[method] = bt
-        smallest = min(synthesisers, key=lambda m: (bts[m].node_count, synthesisers.index(m)))
+        smallest = smallest_bt(bts)
         out.update({"bt_method": smallest, "bt_nodes": bts[smallest].node_count,
                     "bt_conditions": bts[smallest].node_types()["condition"],
                     "bt": bts[smallest].to_dict()})

@@ -116,13 +116,17 @@ def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
 def evaluate_tree(cfg: Config, task: str | Task, tree: Any) -> dict[str, float]:
     """A decision tree's final evaluation (cached on the tree's exact structure)."""
     spec = get_task(task)
-    params = {"task": spec.name, "episodes": cfg.final_episodes, "tree": tree_digest(tree)}
+    return _final_evaluation(cfg, spec, "tree-eval", {"tree": tree_digest(tree)},
+                             lambda: TreePolicy(spec, tree).act)
 
-    def compute() -> dict[str, float]:
-        return _final_metrics(cfg, spec, TreePolicy(spec, tree).act)
 
-    return load_or_compute("tree-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
-                           refresh=cfg.refresh)
+def _final_evaluation(cfg: Config, spec: Task, kind: str, what: dict[str, str], act: Any
+                      ) -> dict[str, float]:
+    """``act()``'s policy on the profile's final episodes, cached as ``kind`` under ``what``
+    (a tree's or a BT's digest)."""
+    params = {"task": spec.name, "episodes": cfg.final_episodes, **what}
+    return load_or_compute(kind, params, lambda: _final_metrics(cfg, spec, act()),
+                           cache_dir=cfg.cache_dir, codec="json", refresh=cfg.refresh)
 
 
 def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
@@ -285,13 +289,8 @@ def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
     from ibt.evaluate.policies import BTPolicy
 
     spec = get_task(task)
-    params = {"task": spec.name, "episodes": cfg.final_episodes, "bt": _bt_digest(bt)}
-
-    def compute() -> dict[str, float]:
-        return _final_metrics(cfg, spec, BTPolicy(spec, bt).act)
-
-    return load_or_compute("bt-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
-                           refresh=cfg.refresh)
+    return _final_evaluation(cfg, spec, "bt-eval", {"bt": _bt_digest(bt)},
+                             lambda: BTPolicy(spec, bt).act)
 
 
 def executors_agree(cfg: Config, task: str | Task, bt: Any, tree: Any, n_states: int = 100_000

@@ -105,6 +105,14 @@ def bt_digest(bt: Any) -> str:
     return hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]
 
 
+def smallest_bt(bts: dict[str, Any]) -> str:
+    """The synthesiser whose BT has the fewest nodes (ties: the earlier one, in the order the
+    BTs were made, the registry's): the one "smallest BT" rule of the grid, the front, the
+    continuous study and the pipeline."""
+    names = list(bts)
+    return min(names, key=lambda m: (bts[m].node_count, names.index(m)))
+
+
 def leaves_of(tree: Any) -> int:
     from ibt.refine.commands import CommandArrays
 
@@ -458,7 +466,7 @@ def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: li
     if isinstance(tree, CommandArrays):
         from ibt.synth.commands import CommandBTPolicy
 
-        bt = min(bts.values(), key=lambda b: b.node_count)
+        bt = bts[smallest_bt(bts)]
         return returns_of(cfg, task, {"bt": bt_digest(bt)},
                           lambda: CommandBTPolicy(task, bt).act, seeds)
     return returns_of(cfg, task, {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act,
