@@ -461,7 +461,7 @@ def decision_tree_graphviz(tree, feature_names, action_names, precision: int = 4
 
     t = tree.tree_
     classes = np.asarray(tree.classes_)
-    feature_map = getattr(tree, "feature_map_", None)  # a relational tree (issue 26)
+    feature_map = getattr(tree, "feature_map_", None)  # a relational tree
     if feature_map is not None:  # derived columns read as a reader writes them: x - vx
         feature_names = feature_map.names(feature_names)
     graph = digraph(graph_attr={"rankdir": "TB", "nodesep": "0.2", "ranksep": "0.3",

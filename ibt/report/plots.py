@@ -697,13 +697,13 @@ def _panel_rows(frame: pd.DataFrame, task: str, expert: str | None) -> pd.DataFr
 
 def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.DataFrame,
                      path: str | Path | None = None) -> plt.Figure:
-    """Return against BT nodes for the continuous-action tasks (issue 25, notebook 10).
+    """Return against BT nodes for the continuous-action tasks (notebook 10).
 
     ``points``: one row per run (task, refined, leaf_limit, bt_nodes, mean_return,
     expert_return, algo); a line per kind (distilled, refined) through its leaf limits, mean
     over seeds with the range over seeds as error bars, faint dots for single seeds;
     ``anchors``: published or run-here trees (task, source, tree_nodes, mean_return);
-    ``targets``: the issue's bars (task, min_return).
+    ``targets``: the bars set before the runs (task, min_return; ``ibt.runs.continuous``).
     """
     tasks = list(dict.fromkeys(points["task"]))
     fig, axes = plt.subplots(1, len(tasks), figsize=(FIG_WIDTH - 0.7, 3.2), squeeze=False)
