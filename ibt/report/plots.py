@@ -748,7 +748,7 @@ def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.Da
                "seeds; faint dots are single seeds; 100 final episodes each, every BT rolled "
                "out from its JSON document. Black marks: trees published or run here (their "
                "tree nodes, 2 x leaves - 1, not BT nodes). Dotted: the expert; dashed: the "
-               "issue's target.")
+               "target return, fixed before the runs (the targets table of notebook 10).")
     fig.tight_layout(rect=(0, 0.0, 1, 0.97))
     fig.text(0.5, 0.0, _wrap(caption, 110), ha="center", va="top", fontsize=9)
     if path is not None:
