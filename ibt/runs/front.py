@@ -61,7 +61,7 @@ class Anchor:
     leaves: int | None
     mean_return: float
     std_return: float | None
-    # the bar "ahead of it at its own size" (issue 22): a mean return above the anchor's with at
+    # the bar "ahead of it at its own size": a mean return above the anchor's with at
     # most ``leaves`` leaves, a BT of at most ``max_bt_nodes`` nodes and, where published, at
     # least ``min_share`` of the episodes at or above the task's protocol threshold
     max_bt_nodes: int | None = None
