@@ -99,6 +99,16 @@ def draw_front(rec: Recommendation, path: Path) -> None:
     ax.scatter([rec.chosen.bt_nodes], [rec.chosen.retention], s=220, facecolors="none",
                edgecolors="crimson", linewidths=2, label="recommended")
     ax.set_xscale("log")
+    # plain ticks (10, 20, 30, 60), not 10^1, 2x10^1: round numbers inside the axis' range
+    from matplotlib.ticker import FixedLocator, NullFormatter, StrMethodFormatter
+
+    low, high = ax.get_xlim()
+    ticks = [m * 10**e for e in range(0, 6) for m in (1, 2, 3, 5) if low <= m * 10**e <= high]
+    if len(ticks) < 3:  # a narrow range: whole numbers spread over it
+        ticks = sorted({*ticks, *(round(low * (high / low) ** (k / 4)) for k in (1, 2, 3))})
+    ax.xaxis.set_major_locator(FixedLocator(ticks))
+    ax.xaxis.set_major_formatter(StrMethodFormatter("{x:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("BT nodes (smallest verified BT of each tree)")
     ax.set_ylabel("retention, % (0 random, 100 agent)")
     ax.set_title(f"{rec.task.name}, {rec.algo} agent: choice episodes", fontsize=10)
