@@ -18,17 +18,22 @@ if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
 
 from ibt.cli.checks import (
     EXPORT_SUFFIXES,
+    MAX_LEAVES,
+    MAX_REFINE_EPISODES,
     UsageError,
     _again,
     _bt_hint,
     _load_bt,
     _read_json,
     _tree_task,
+    check_cache_folder,
     check_input,
+    check_not_input,
     check_output,
     check_output_folder,
     load_tree_file,
     read_input,
+    same_path,
 )
 
 
@@ -168,7 +173,7 @@ def _refine(args: argparse.Namespace) -> int:
     from ibt.distill.tree_file import save_tree_file
     from ibt.refine.by_return import refine, task_config
 
-    out = check_output(args.output, (".json",))
+    out = check_output(args.output, (".json",), inputs=[args.tree])
     doc = load_tree_file(args.tree, args)
     task = _tree_task(doc, args.tree, args)
     overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
@@ -240,7 +245,7 @@ def _synthesize(args: argparse.Namespace) -> int:
     from ibt.bt.json_io import save_json
     from ibt.synth.imitation import NotEquivalentError, imitation_bt
 
-    out = check_output(args.output, (".json",))
+    out = check_output(args.output, (".json",), inputs=[args.tree])
     doc = load_tree_file(args.tree, args)
     task = _tree_task(doc, args.tree, args)
     try:
@@ -269,7 +274,7 @@ def _synthesize(args: argparse.Namespace) -> int:
 def _convert_tree(args: argparse.Namespace) -> int:
     from ibt.distill.tree_file import PICKLE_SUFFIXES, convert_tree_file
 
-    out = check_output(args.output, (".json",))
+    out = check_output(args.output, (".json",), inputs=[args.tree])
     source = check_input(args.tree, "pickled decision-tree file", "pass the .joblib file to "
                          "convert")
     if source.suffix.lower() not in PICKLE_SUFFIXES:
@@ -380,7 +385,7 @@ def _export(args: argparse.Namespace) -> int:
     from ibt.export.pictures import save_drawing
     from ibt.files import atomic_write_text
 
-    out = check_output(args.output, EXPORT_SUFFIXES[args.format])
+    out = check_output(args.output, EXPORT_SUFFIXES[args.format], inputs=[args.bt])
     if args.format in ("svg", "png"):
         require_dot()
     bt = _load_bt(args.bt)
@@ -415,11 +420,16 @@ def _run_btcpp(args: argparse.Namespace) -> int:
 
 
 def _pipeline(args: argparse.Namespace) -> int:
-    from ibt.runs.recommend import recommend
-    from ibt.runs.recommend_files import write_outputs
+    from ibt.runs.owned_folder import FolderError, claim, take
+    from ibt.runs.recommend_files import OUTPUTS
     from ibt.tasks.catalogue import resolve_task
 
+    # every path is checked before any work: the folder, the cache, the checkpoint
     out = check_output_folder(args.output, "-o")
+    cache = check_cache_folder(args.cache_dir or out / "cache", "--cache-dir")
+    if same_path(cache, out):
+        raise UsageError(f"--cache-dir {cache} is the output folder itself; drop --cache-dir "
+                         f"(the cache then goes to {out / 'cache'}) or name another folder")
     task = resolve_task(args.task)
     checkpoint = args.checkpoint
     if checkpoint is None:
@@ -427,11 +437,26 @@ def _pipeline(args: argparse.Namespace) -> int:
 
         checkpoint = expert_path(task, args.algo)
     check_input(checkpoint, "SB3 checkpoint", "pass your agent's zip with --checkpoint")
+    check_not_input([out / name for name in OUTPUTS], checkpoint)
+    try:
+        folder = claim(out, OUTPUTS, force=args.force, cache=cache)
+    except FolderError as err:
+        raise UsageError(str(err)) from None
+    note = folder.note()
+    if note:
+        print(note)
+    from ibt.runs.recommend import recommend
+    from ibt.runs.recommend_files import write_outputs
+
+    take(folder)  # marked as the pipeline's before the long work: a rerun may write there
     rec = recommend(task, args.algo, checkpoint, keep=args.keep, budget=args.budget,
                     leaf_limits=args.leaves, seed=args.seed, episodes=args.episodes,
-                    cache_dir=args.cache_dir or Path(args.output) / "cache",
-                    progress=not args.quiet, argv=args.argv, env_modules=args.env_module)
-    write_outputs(rec, out)
+                    cache_dir=cache, progress=not args.quiet, argv=args.argv,
+                    env_modules=args.env_module)
+    try:
+        write_outputs(rec, folder)
+    except FolderError as err:
+        raise UsageError(str(err)) from None
     verdict = "meets" if rec.met else "MISSES"
     print(f"{task.name}/{args.algo}: recommended a {rec.chosen.bt_nodes}-node BT keeping "
           f"{rec.retention:.1f} % of the agent (random-normalised, {rec.episodes} held-out "
@@ -451,23 +476,40 @@ def _keep(text: str) -> float:
 
 
 def _budget(text: str) -> Any:
+    """An argparse type: ``smoke``, a scale (``2x``, at most 1000x) or refinement episodes per
+    leaf limit, at most refine's ``--episodes`` maximum."""
     from ibt.runs.recommend import parse_budget
 
     try:
-        return parse_budget(text)
+        budget = parse_budget(text[:40])
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err).split(": ", 1)[-1]) from None
+    if len(text) > 40 or (budget.refine_episodes or 0) > MAX_REFINE_EPISODES:
+        raise argparse.ArgumentTypeError(f"refinement episodes per leaf limit must be at most "
+                                         f"{MAX_REFINE_EPISODES:,}, got {text:.40}")
+    return budget
+
+
+MAX_LEAF_LIMITS = 12  #: --leaves: at most this many limits (each is a distillation)
 
 
 def _leaf_limits(text: str) -> tuple[int, ...]:
-    """An argparse type: comma-separated leaf limits, each at least 2."""
+    """An argparse type: comma-separated leaf limits, each from 2 to distill's
+    ``--max-leaf-nodes`` maximum, at most :data:`MAX_LEAF_LIMITS` of them."""
+    parts = [v for v in text.split(",") if v.strip()]
+    if len(parts) > MAX_LEAF_LIMITS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_LEAF_LIMITS} leaf limits, got "
+                                         f"{len(parts)}")
     try:
-        values = tuple(sorted({int(v) for v in text.split(",") if v.strip()}))
-    except ValueError:
+        values = tuple(sorted({int(v) if len(v) <= 30 else None for v in parts}))  # type: ignore
+    except (ValueError, TypeError):
         raise argparse.ArgumentTypeError(f"expected leaf limits such as 4,8,16,32, got "
-                                         f"{text!r}") from None
+                                         f"{text!r:.60}") from None
     if not values or values[0] < 2:
-        raise argparse.ArgumentTypeError(f"leaf limits must be at least 2, got {text!r}")
+        raise argparse.ArgumentTypeError(f"leaf limits must be at least 2, got {text!r:.60}")
+    if values[-1] > MAX_LEAVES:
+        raise argparse.ArgumentTypeError(f"leaf limits must be at most {MAX_LEAVES:,} (as "
+                                         f"distill's --max-leaf-nodes), got {values[-1]:,}")
     return values
 
 
