@@ -414,9 +414,27 @@ def _run_btcpp(args: argparse.Namespace) -> int:
                     args.step_delay)
     print(run.summary())
     if not run.ok:
-        print("error: BehaviorTree.CPP and the Python BT disagree (a bug: please report it)",
+        print(f"error: BehaviorTree.CPP and the Python BT disagree; {_disagreement(xml, run)}",
               file=sys.stderr)
     return 0 if run.ok else 1
+
+
+def _disagreement(xml: Path, run: Any) -> str:
+    """Why the engine and the Python BT may disagree: an edited file, or a bug of ours."""
+    from ibt.export.btcpp import DIFFERS, to_btcpp_xml
+
+    bt = run.bt
+    try:
+        text = xml.read_text(encoding="utf-8")
+        written = {to_btcpp_xml(bt, flavour=f) for f in ("portable", "check-feature")} if bt \
+            else set()
+    except (OSError, ValueError):
+        written = set()
+    if bt is not None and text not in written:
+        return (f"{DIFFERS} for the BT it reads as (edited by hand or by another tool?): "
+                "export the BT again with `python -m ibt export BT.json --format btcpp-xml`")
+    return ("the file is exactly what ibt writes, so this is a bug of ibt: please report it "
+            "with the file")
 
 
 def _pipeline(args: argparse.Namespace) -> int:
