@@ -5,12 +5,13 @@ and BT files read safely; bad input is a :class:`UsageError` (exit 2, one line).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import math
 import os
 import shlex
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -226,6 +227,22 @@ def check_cache_folder(path: str | Path, option: str) -> Path:
         if not existing.is_dir():
             raise UsageError(f"{what}: {existing} is a file, not a folder; choose another path")
     return path
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """While active, a warning prints as one line on stderr (``warning: MESSAGE``), without
+    the file, line and source line Python adds: a user reads what happened, not our code."""
+    import sys
+    import warnings
+
+    def show(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any
+             ) -> None:
+        print(f"warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
 
 
 def check_input(path: str | Path, what: str, hint: str) -> Path:

@@ -32,6 +32,7 @@ from ibt.cli.checks import (
     check_output,
     check_output_folder,
     load_tree_file,
+    one_line_warnings,
     read_input,
     same_path,
 )
@@ -467,10 +468,11 @@ def _pipeline(args: argparse.Namespace) -> int:
     from ibt.runs.recommend_files import write_outputs
 
     take(folder)  # marked as the pipeline's before the long work: a rerun may write there
-    rec = recommend(task, args.algo, checkpoint, keep=args.keep, budget=args.budget,
-                    leaf_limits=args.leaves, seed=args.seed, episodes=args.episodes,
-                    cache_dir=cache, progress=not args.quiet, argv=args.argv,
-                    env_modules=args.env_module)
+    with one_line_warnings():  # e.g. one line for a cache that cannot be written
+        rec = recommend(task, args.algo, checkpoint, keep=args.keep, budget=args.budget,
+                        leaf_limits=args.leaves, seed=args.seed, episodes=args.episodes,
+                        cache_dir=cache, progress=not args.quiet, argv=args.argv,
+                        env_modules=args.env_module)
     try:
         write_outputs(rec, folder)
     except FolderError as err:
