@@ -318,7 +318,16 @@ def _load_policy(path: Path, args: argparse.Namespace):
             raise UsageError("a BT file does not name its task; pass --task with the "
                              "environment it was made for")
         task = resolve_task(args.task)
-        if bt.commands is not None or task.continuous:  # continuous actions (issue 25)
+        if (bt.commands is None) == task.continuous:
+            has = (f"sends commands ({', '.join(bt.commands.dimensions)})" if bt.commands
+                   else f"has discrete actions ({', '.join(bt.action_names)})")
+            wants = ("continuous actions (a Box), whose BTs send commands" if task.continuous
+                     else f"discrete actions ({', '.join(task.action_names)})")
+            known = _matching_tasks(bt)
+            fix = (f"run `{_again(args, '--task', known[0])}`" if len(known) == 1
+                   else "pass the task the BT was made for")
+            raise UsageError(f"{path} {has}, but {task.name} has {wants}; {fix}")
+        if bt.commands is not None:  # continuous actions: a BT with commands
             from ibt.synth.commands import CommandBTPolicy
 
             try:
