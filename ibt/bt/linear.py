@@ -70,8 +70,8 @@ class LinearForm:
             # one rule wherever a BT is read, run or exported: BehaviorTree.CPP's number parser
             # rejects subnormal doubles, so a weight must be a normal double
             if not sys.float_info.min <= magnitude < math.inf:
-                raise ValueError(f"a linear form's weight {name} must be finite, non-zero and "
-                                 f"not subnormal (at least {sys.float_info.min:.4g} in "
+                raise ValueError(f"a linear form's weight {name} must be finite and non-zero, "
+                                 f"and not subnormal (at least {sys.float_info.min:.4g} in "
                                  f"magnitude), got {value!r:.40}")
             object.__setattr__(self, name, float(value))
 

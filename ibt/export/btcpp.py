@@ -280,10 +280,9 @@ DIFFERS = "this file differs from what ibt writes"
 #: model, so a file holding one is refused
 ATTRIBUTES = {"root": {"BTCPP_format", "main_tree_to_execute"}, "BehaviorTree": {"ID"},
               SCRIPT_CONDITION: {"code", "name"}, "Script": {"code", "name"},
-              "Condition": {"ID", "name", "feature", "op", "threshold"},
-              "Action": {"ID", "name"}, "Inverter": {"name"}, "Sequence": {"name"},
-              "Fallback": {"name"}}
-COMPACT_ACTION = {"name"}  # Groot2's <go/> for <Action ID="go"/>
+              CONDITION_ID: {"name", "feature", "op", "threshold"},
+              "Inverter": {"name"}, "Sequence": {"name"}, "Fallback": {"name"}}
+ACTION_ATTRIBUTES = {"name"}  # <Action ID="go" name="go"/>, or Groot2's compact <go/>
 
 
 def _check_attributes(element: ET.Element, allowed: set[str]) -> None:
@@ -366,8 +365,9 @@ def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, 
           commands: tuple[list[str], Commands] | None = None) -> Node:
     tag = element.tag
     ident = element.get("ID", "") if tag in ("Action", "Condition") else tag
-    _check_attributes(element, ATTRIBUTES.get(tag, COMPACT_ACTION if tag in action_of
-                                              else set(element.attrib)))
+    known = ATTRIBUTES.get(ident, ACTION_ATTRIBUTES if ident in action_of else None)
+    if known is not None:  # an unknown node is refused below, by its name
+        _check_attributes(element, known | ({"ID"} if tag in ("Action", "Condition") else set()))
     if ident == SCRIPT_CONDITION:
         return _script_condition(element.get("code", ""), feature_of)
     if ident == "Script" and commands is not None:

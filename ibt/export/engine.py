@@ -472,7 +472,7 @@ def xml_commands(xml: str, task: Task, source: str = "the XML") -> Commands:
     if not table:
         raise ValueError(f"{source} has no Script node that writes a command: it is a BT with "
                          f"discrete actions, but {task.name} has continuous actions (a Box), "
-                         "whose BTs write commands; pass the task the XML was made for")
+                         "whose BTs write commands; pass the task the XML was made for.")
     if sorted(table) != list(range(len(table))):
         raise ValueError(f"{source}: its Script nodes write command ids {sorted(table)}; "
                          f"expected 0 to {len(table) - 1}")
