@@ -473,9 +473,11 @@ def _pipeline(args: argparse.Namespace) -> int:
     note = folder.note()
     if note:
         print(note)
+    from ibt.experts.expert import load_expert
     from ibt.runs.recommend import recommend
     from ibt.runs.recommend_files import write_outputs
 
+    load_expert(task, args.algo, checkpoint)  # its kind and spaces (loaded once: kept)
     take(folder)  # marked as the pipeline's before the long work: a rerun may write there
     with one_line_warnings():  # e.g. one line for a cache that cannot be written
         rec = recommend(task, args.algo, checkpoint, keep=args.keep, budget=args.budget,
@@ -510,10 +512,10 @@ def _budget(text: str) -> Any:
     from ibt.runs.recommend import parse_budget
 
     try:
-        budget = parse_budget(text[:40])
+        budget = parse_budget(text if len(text) <= 40 else "?")
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err).split(": ", 1)[-1]) from None
-    if len(text) > 40 or (budget.refine_episodes or 0) > MAX_REFINE_EPISODES:
+    if (budget.refine_episodes or 0) > MAX_REFINE_EPISODES:
         raise argparse.ArgumentTypeError(f"refinement episodes per leaf limit must be at most "
                                          f"{MAX_REFINE_EPISODES:,}, got {text:.40}")
     return budget
@@ -530,8 +532,10 @@ def _leaf_limits(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"at most {MAX_LEAF_LIMITS} leaf limits, got "
                                          f"{len(parts)}")
     try:
-        values = tuple(sorted({int(v) if len(v) <= 30 else None for v in parts}))  # type: ignore
-    except (ValueError, TypeError):
+        if any(len(v) > 30 for v in parts):
+            raise ValueError("too long")
+        values = tuple(sorted({int(v) for v in parts}))
+    except ValueError:
         raise argparse.ArgumentTypeError(f"expected leaf limits such as 4,8,16,32, got "
                                          f"{text!r:.60}") from None
     if not values or values[0] < 2:
