@@ -447,10 +447,10 @@ CASES: list[tuple[str, list[str], str]] = [
     ("threshold-huge-integer", ["evaluate", "{d}/threshold_huge_int.json", "--task",
                                 "CartPole-v1"], "threshold must be finite"),
     ("command-beyond-float32", ["evaluate", "{d}/command_huge.json", "--task", "Pendulum-v1"],
-     "not a finite float32 number"),
+     "not a finite number that fits in float32"),
     ("command-beyond-float32-export", ["export", "{d}/command_huge.json", "--format",
                                        "btcpp-xml", "-o", "{o}/x.xml"],
-     "not a finite float32 number"),
+     "not a finite number that fits in float32"),
     ("discrete-bt-on-a-box-task", ["evaluate", "{d}/bt.json", "--task", "Pendulum-v1"],
      "has discrete actions (push_left, push_right), but Pendulum-v1 has continuous actions"),
     # --- BehaviorTree.CPP XML that differs from what ibt writes

@@ -222,9 +222,9 @@ class Commands:
             bad = [v for v in row if isinstance(v, bool) or not isinstance(v, int | float)
                    or not abs(_as_float(v)) <= FLOAT32_MAX]
             if bad:  # commands are sent as float32: the same rule as observations
-                raise ValueError(f"command {i} holds {bad[0]!r:.40}, not a finite float32 "
-                                 f"number (at most {FLOAT32_MAX:.8g} in magnitude); give every "
-                                 "command such values")
+                raise ValueError(f"command {i} holds {bad[0]!r:.40}, not a finite number "
+                                 f"that fits in float32 (at most {FLOAT32_MAX:.8g} in "
+                                 "magnitude); give every command such values")
             rows.append(tuple(float(v) for v in row))
         return cls(dims, tuple(units), tuple(rows))
 
