@@ -375,4 +375,4 @@ if __name__ == "__main__":  # the table of docs/hostile-files.md, from real runs
             line = run.stderr.strip().replace(str(Path(scratch) / f"case{i}"), "DIR")
             intact = "files intact" if after == before else "FILES CHANGED"
             print(f"| {case.name} | `{command}` | {case.expected} | exit {run.returncode}; "
-                  f"{intact}; `{line.replace('|', '/')}` |")
+                  f"{intact}; `` {line.replace('|', '/')} `` |")
