@@ -114,7 +114,6 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
     cache_name = None
     if cache is not None and Path(cache).parent.resolve() == folder.path.resolve():
         cache_name = Path(cache).name
-    folder.cache = cache_name
     try:
         entries = sorted(os.scandir(folder.path), key=lambda e: e.name)
     except FileNotFoundError:
@@ -123,8 +122,8 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
         raise FolderError(f"{where}: cannot list it ({err.strerror}); choose another "
                           "folder") from None
     marker = _marker(folder.path)
-    if cache_name is not None and marker.get("cache") not in (None, cache_name):
-        marker = {**marker, "cache": None}
+    made = marker.get("cache") if isinstance(marker.get("cache"), str) else None
+    folder.cache = cache_name or made  # the marker keeps naming a cache a run made here
     foreign: list[str] = []
     refused: list[str] = []
     for entry in entries:
@@ -134,8 +133,7 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
             if name == MARKER and read_only(st):
                 refused.append(f"{name} (read-only)")
             continue
-        if name == cache_name and not link and marker.get("cache") == cache_name \
-                and stat.S_ISDIR(st.st_mode):
+        if name == made and not link and stat.S_ISDIR(st.st_mode):
             continue
         if name in names and not link and read_only(st):
             refused.append(f"{name} (read-only: ibt never replaces it)")
