@@ -143,7 +143,13 @@ def cli(argv: list[str], env: dict[str, str] | None = None, timeout: float = 300
     return subprocess.run([sys.executable, "-m", "ibt", *map(str, argv)], capture_output=True,
                           text=True, cwd=ROOT, timeout=timeout,
                           env={**os.environ, "PYTHONPATH": path, "SDL_VIDEODRIVER": "dummy",
-                               **(env or {})})
+                               **(env or {})}, preexec_fn=_ctrl_c_default if env else None)
+
+
+def _ctrl_c_default() -> None:
+    """A child that takes Ctrl-C as a user's terminal does, even when this test runs as a
+    background job (whose children inherit an ignored SIGINT)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def snapshot(folder: Path) -> dict[str, tuple[str, int, str]]:
@@ -267,8 +273,18 @@ POINTS = [*(f"temp:{n}" for n in NAMES), "written", "commit:marker", "commit:inc
           *(f"commit:{n}" for n in NAMES)]
 
 
+@pytest.fixture
+def ctrl_c_raises():
+    """Ctrl-C raises KeyboardInterrupt here, as in a terminal, even when the tests run as a
+    background job (which starts with SIGINT ignored)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "SIGINT twice", "crash"])
-def test_every_point_of_the_write_phase_leaves_a_whole_set(tmp_path, monkeypatch, how):
+def test_every_point_of_the_write_phase_leaves_a_whole_set(tmp_path, monkeypatch, how,
+                                                           ctrl_c_raises):
     """A signal (or two Ctrl-Cs) anywhere leaves the old or the new set; a crash (what SIGKILL
     is to the process) leaves them or a report.md saying the set is incomplete; the folder stays
     the pipeline's (a rerun may write there)."""
