@@ -4,7 +4,9 @@ Each row of :data:`CASES` is a command that must fail before doing any work: a b
 (NaN threshold, fractional index, no reachable action ...), a bad or mismatched tree file, a
 number out of range, an output path that cannot be written, an environment module that cannot
 be imported, a checkpoint of another kind, a pickle that would run code, a device or a pipe
-instead of a file, a BT nested too deeply. The test runs it, expects exit code 2, exactly one
+instead of a file, a BT nested too deeply, every option and path of ``pipeline``, an output that
+is the command's own input, a weight or command outside the number rule, BehaviorTree.CPP XML
+with attributes or nodes ibt does not write. The test runs it, expects exit code 2, exactly one
 line on stderr containing the expected words, nothing on stdout, and no file left behind (so no
 pickle payload and no module named in a file ran: each would write a marker there).
 """
@@ -150,7 +152,44 @@ def files(tmp_path_factory) -> Path:
     (folder / "a_folder").mkdir()
     (folder / "a_file.txt").write_text("a file, not a folder")
     (folder / "broken_env_module.py").write_text("raise RuntimeError('the module is broken')\n")
+    _hostile_inputs(folder, doc)
     return folder
+
+
+#: BehaviorTree.CPP attributes ibt does not model, each put on the first <Sequence>
+XML_ATTRIBUTES = ("_skipIf", "_successIf", "_failureIf", "_while", "_pre", "_post",
+                  "_onSuccess", "_onFailure", "_onHalted")
+
+
+def _hostile_inputs(folder: Path, doc: dict) -> None:
+    """Links, numbers at the edge of the number rule, XML edited past what ibt writes."""
+    from ibt.export.btcpp import to_btcpp_xml
+
+    (folder / "loop_a").symlink_to(folder / "loop_b")
+    (folder / "loop_b").symlink_to(folder / "loop_a")
+    (folder / "dangling").symlink_to(folder / "nowhere")
+    (folder / "bt_link.json").symlink_to(folder / "bt.json")
+    relational = _mutate(doc, lambda d: _first_condition(d).update(
+        {"form": {"features": [0, 1], "weights": [1e-320, -1.0]}}))
+    del _first_condition(relational)["feature"]  # a relational condition names no feature
+    (folder / "weight_subnormal.json").write_text(json.dumps(relational))
+    text = json.dumps(_mutate(doc, _set("threshold", 12345.0)))
+    (folder / "threshold_huge_int.json").write_text(text.replace("12345.0", "1" + "0" * 400))
+    pendulum = json.loads((Path(__file__).resolve().parents[1] / "data" / "trees" / "Pendulum-v1"
+                           / "sac" / "imitation-bt-plus.json").read_text())
+    pendulum["commands"]["values"][0][0] = 1e300
+    (folder / "command_huge.json").write_text(json.dumps(pendulum))
+    from ibt.bt.model import BehaviorTree
+
+    xml = to_btcpp_xml(BehaviorTree.from_dict(doc))
+    (folder / "bt.xml").write_text(xml)
+    for name in XML_ATTRIBUTES:
+        (folder / f"{name}.xml").write_text(xml.replace("<Sequence>", f'<Sequence {name}="x">', 1))
+    (folder / "SubTree.xml").write_text(xml.replace("<Sequence>", '<SubTree ID="T"/><Sequence>', 1))
+    (folder / "Parallel.xml").write_text(xml.replace("Sequence>", "Parallel>"))
+    (folder / "include.xml").write_text(xml.replace("<TreeNodesModel>",
+                                                    '<include path="x.xml"/><TreeNodesModel>'))
+    (folder / "not_utf8.xml").write_bytes(xml.encode().replace(b"<root", b"<root \xff", 1))
 
 
 def _sparse(path: Path) -> Path:
@@ -331,6 +370,104 @@ CASES: list[tuple[str, list[str], str]] = [
     ("expert-without-task", ["evaluate", "ppo", "--episodes", "1"], "needs --task"),
     ("checkpoint-for-a-bt", ["evaluate", "{d}/bt.json", "--task", "CartPole-v1",
                              "--checkpoint", CARTPOLE_PPO], "--checkpoint is for experts"),
+    # --- pipeline: every option, path and input checked before any work
+    *[(f"pipeline-{name}", ["pipeline", "CartPole-v1", "ppo", "-o", "{o}/p", *extra], words)
+      for name, extra, words in [
+          ("keep-0", ["--keep", "0"], "--keep: must be in (0, 1]"),
+          ("keep-nan", ["--keep", "nan"], "--keep: must be in (0, 1]"),
+          ("keep-text", ["--keep", "most"], "--keep: expected a share such as 0.95"),
+          ("budget-word", ["--budget", "lots"], "--budget: expected smoke"),
+          ("budget-0x", ["--budget", "0x"], "--budget: expected smoke"),
+          ("budget-2000x", ["--budget", "2000x"], "--budget: expected smoke"),
+          ("budget-episodes-huge", ["--budget", "99999999999"],
+           "--budget: refinement episodes per leaf limit must be at most 10,000,000"),
+          ("budget-very-long", ["--budget", "9" * 5000], "--budget: expected smoke"),
+          ("leaves-1", ["--leaves", "1,4"], "--leaves: leaf limits must be at least 2"),
+          ("leaves-huge", ["--leaves", "4,100000000000000000000"],
+           "--leaves: leaf limits must be at most 100,000"),
+          ("leaves-5000-digits", ["--leaves", "9" * 5000], "--leaves: expected leaf limits"),
+          ("leaves-too-many", ["--leaves", ",".join(map(str, range(2, 40)))],
+           "--leaves: at most 12 leaf limits"),
+          ("leaves-text", ["--leaves", "four"], "--leaves: expected leaf limits"),
+          ("leaves-empty", ["--leaves", ","], "--leaves: leaf limits must be at least 2"),
+          ("episodes-0", ["--episodes", "0"], "--episodes: must be at least 1"),
+          ("episodes-huge", ["--episodes", "100000000000"], "must be at most 1,000,000"),
+          ("episodes-float", ["--episodes", "1e3"], "--episodes: expected an integer"),
+          ("seed-negative", ["--seed", "-1"], "--seed: must be at least 0"),
+          ("seed-beyond-32-bits", ["--seed", "4294967296"], "must be at most 4,294,967,295"),
+          ("checkpoint-missing", ["--checkpoint", "{d}/nothing.zip"], "no SB3 checkpoint at"),
+          ("checkpoint-is-a-folder", ["--checkpoint", "{d}/a_folder"], "is a folder"),
+          ("checkpoint-device", ["--checkpoint", "/dev/zero"], "not a regular file"),
+          ("checkpoint-not-a-zip", ["--checkpoint", "{d}/not_a_zip.zip"], "not a zip archive"),
+          ("checkpoint-of-another-algorithm", ["--checkpoint", CARTPOLE_DQN],
+           "is a DQN checkpoint, not a PPO one"),
+          ("cache-dir-is-a-file", ["--cache-dir", "{d}/a_file.txt"],
+           "a_file.txt is a file, not a folder"),
+          ("cache-dir-under-a-file", ["--cache-dir", "{d}/a_file.txt/cache"],
+           "is a file, not a folder"),
+          ("cache-dir-link-loop", ["--cache-dir", "{d}/loop_a"], "a loop of symbolic links"),
+          ("cache-dir-is-the-output", ["--cache-dir", "{o}/p"], "is the output folder itself"),
+      ]],
+    ("pipeline-output-is-a-file", ["pipeline", "CartPole-v1", "ppo", "-o", "{d}/a_file.txt"],
+     "is a file, not a folder"),
+    ("pipeline-output-under-a-file", ["pipeline", "CartPole-v1", "ppo", "-o",
+                                      "{d}/a_file.txt/out"], "is a file, not a folder"),
+    ("pipeline-output-link-loop", ["pipeline", "CartPole-v1", "ppo", "-o", "{d}/loop_a"],
+     "a loop of symbolic links"),
+    ("pipeline-output-dangling-link", ["pipeline", "CartPole-v1", "ppo", "-o", "{d}/dangling"],
+     "which does not exist"),
+    ("pipeline-output-unwritable", ["pipeline", "CartPole-v1", "ppo", "-o", "/sys/ibt-test"],
+     "cannot write in /sys"),
+    ("pipeline-output-holds-other-files", ["pipeline", "CartPole-v1", "ppo", "-o", "{d}"],
+     "holds files ibt pipeline did not write"),
+    ("pipeline-task-misspelt", ["pipeline", "CartPol-v1", "ppo", "-o", "{o}/p"],
+     "Did you mean CartPole-v1"),
+    ("pipeline-env-module-missing", ["pipeline", "CartPole-v1", "ppo", "-o", "{o}/p",
+                                     "--env-module", "no_such_package.envs"],
+     "cannot import the environment module 'no_such_package.envs'"),
+    ("pipeline-unknown-algorithm", ["pipeline", "CartPole-v1", "ddpg", "-o", "{o}/p"],
+     "invalid choice: 'ddpg'"),
+    ("pipeline-checkpoint-of-another-task", ["pipeline", "MountainCar-v0", "ppo", "-o",
+                                             "{o}/p", "--checkpoint", CARTPOLE_PPO],
+     "another task"),
+    # --- no command writes over its own input
+    ("synthesize-over-its-input", ["synthesize", "{d}/tree.json", "-o", "{d}/tree.json"],
+     "never writes over its own input"),
+    ("refine-over-its-input", ["refine", "{d}/tree.json", "-o", "{d}/tree.json"],
+     "never writes over its own input"),
+    ("export-over-its-input", ["export", "{d}/bt.json", "--format", "json", "-o",
+                               "{d}/bt.json"], "never writes over its own input"),
+    ("export-through-a-link-to-its-input", ["export", "{d}/bt.json", "--format", "json", "-o",
+                                            "{d}/bt_link.json"], "is a symbolic link"),
+    # --- one number rule for weights and commands
+    ("weight-subnormal-evaluate", ["evaluate", "{d}/weight_subnormal.json", "--task",
+                                   "CartPole-v1"], "not subnormal"),
+    ("weight-subnormal-export", ["export", "{d}/weight_subnormal.json", "--format",
+                                 "btcpp-xml", "-o", "{o}/x.xml"], "not subnormal"),
+    ("threshold-huge-integer", ["evaluate", "{d}/threshold_huge_int.json", "--task",
+                                "CartPole-v1"], "threshold must be finite"),
+    ("command-beyond-float32", ["evaluate", "{d}/command_huge.json", "--task", "Pendulum-v1"],
+     "not a finite number that fits in float32"),
+    ("command-beyond-float32-export", ["export", "{d}/command_huge.json", "--format",
+                                       "btcpp-xml", "-o", "{o}/x.xml"],
+     "not a finite number that fits in float32"),
+    ("discrete-bt-on-a-box-task", ["evaluate", "{d}/bt.json", "--task", "Pendulum-v1"],
+     "has discrete actions (push_left, push_right), but Pendulum-v1 has continuous actions"),
+    # --- BehaviorTree.CPP XML that differs from what ibt writes
+    *[(f"xml-{name}", ["run-btcpp", f"{{d}}/{name}.xml", "--task", "CartPole-v1"], words)
+      for name, words in [
+          ("_skipIf", "attribute _skipIf, which ibt does not model (this file differs"),
+          ("_successIf", "attribute _successIf"), ("_failureIf", "attribute _failureIf"),
+          ("_while", "attribute _while"), ("_pre", "attribute _pre"),
+          ("_post", "attribute _post"), ("_onSuccess", "attribute _onSuccess"),
+          ("_onFailure", "attribute _onFailure"), ("_onHalted", "attribute _onHalted"),
+          ("SubTree", "node <SubTree>, which ibt does not model"),
+          ("Parallel", "node <Parallel>, which ibt does not model"),
+          ("include", "<root> holds <include>, which ibt does not model"),
+          ("not_utf8", "not_utf8.xml is not UTF-8 text"),
+      ]],
+    ("xml-discrete-on-a-box-task", ["run-btcpp", "{d}/bt.xml", "--task", "Pendulum-v1"],
+     "it is a BT with discrete actions, but Pendulum-v1 has continuous actions"),
     # --- the parser itself
     ("missing-output", ["synthesize", "{d}/tree.json"], "required: -o/--output"),
     ("unknown-algorithm", ["train", "CartPole-v1", "--algo", "ddpg"], "invalid choice: 'ddpg'"),

@@ -72,7 +72,7 @@ def test_ctrl_c_after_the_first_candidate_leaves_a_complete_marked_report(
     assert main(argv) == 130
     assert "stopped by Ctrl-C" in capsys.readouterr().out
     report = (out / "report.md").read_text()
-    assert "**This run was stopped before its last step**" in report
+    assert "> **Stopped early** (Ctrl-C)" in report
     assert "Ctrl-C stopped it" in report and "refine axis at 4 leaves" in report
     assert all((out / name).stat().st_size > 0 for name in FILES)
 

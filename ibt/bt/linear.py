@@ -24,6 +24,7 @@ weights and ``T`` are written with ``repr`` (shortest round-trip digits).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -62,9 +63,16 @@ class LinearForm:
                                                          | np.floating):
                 raise ValueError(f"a linear form's weight {name} must be a number, "
                                  f"got {value!r}")
-            if not math.isfinite(value) or value == 0:
+            try:
+                magnitude = abs(float(value))
+            except OverflowError:
+                magnitude = math.inf
+            # one rule wherever a BT is read, run or exported: BehaviorTree.CPP's number parser
+            # rejects subnormal doubles, so a weight must be a normal double
+            if not sys.float_info.min <= magnitude < math.inf:
                 raise ValueError(f"a linear form's weight {name} must be finite and non-zero, "
-                                 f"got {value!r}")
+                                 f"and not subnormal (at least {sys.float_info.min:.4g} in "
+                                 f"magnitude), got {value!r:.40}")
             object.__setattr__(self, name, float(value))
 
     def value(self, features: np.ndarray) -> np.ndarray:

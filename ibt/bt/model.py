@@ -127,9 +127,17 @@ def _finite(value: Any) -> float:
     """``value`` as a finite float, or a ``ValueError``."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         raise ValueError(f"a condition's threshold must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"a condition's threshold must be finite, got {value!r}")
+    if not math.isfinite(_as_float(value)):
+        raise ValueError(f"a condition's threshold must be finite, got {value!r:.40}")
     return float(value)
+
+
+def _as_float(value: Any) -> float:
+    """``float(value)``; an integer too large for a double is infinite (no OverflowError)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
 
 
 @dataclass(frozen=True)
@@ -212,10 +220,11 @@ class Commands:
             if not isinstance(row, list) or len(row) != len(dims):
                 raise ValueError(f"command {i} must be a list of {len(dims)} numbers")
             bad = [v for v in row if isinstance(v, bool) or not isinstance(v, int | float)
-                   or not math.isfinite(v)]
-            if bad:
-                raise ValueError(f"command {i} ({row}) holds {bad[0]!r}, not a finite number; "
-                                 "give every command finite values")
+                   or not abs(_as_float(v)) <= FLOAT32_MAX]
+            if bad:  # commands are sent as float32: the same rule as observations
+                raise ValueError(f"command {i} holds {bad[0]!r:.40}, not a finite number "
+                                 f"that fits in float32 (at most {FLOAT32_MAX:.8g} in "
+                                 "magnitude); give every command such values")
             rows.append(tuple(float(v) for v in row))
         return cls(dims, tuple(units), tuple(rows))
 

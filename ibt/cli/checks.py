@@ -5,12 +5,13 @@ and BT files read safely; bad input is a :class:`UsageError` (exit 2, one line).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import math
 import os
 import shlex
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -71,7 +72,9 @@ def _seconds(text: str) -> float:
 POSITIVE = _int_at_least(1, "a count")
 EPISODES = _int_at_least(1, "episodes", 1_000_000)
 SEED = _int_at_least(0, "a seed: 0 to 2**32 - 1", 2**32 - 1)
-LEAVES = _int_at_least(2, "leaves of a tree", 100_000)
+MAX_LEAVES = 100_000  #: a tree's leaf limit (distill --max-leaf-nodes, pipeline --leaves)
+MAX_REFINE_EPISODES = 10_000_000  #: refine --episodes, pipeline --budget EPISODES
+LEAVES = _int_at_least(2, "leaves of a tree", MAX_LEAVES)
 LABELS = _int_at_least(1, "expert labels", 10_000_000)
 ITERATIONS = _int_at_least(1, "iterations", 10_000)
 TIMESTEPS = _int_at_least(1, "timesteps", 10**10)
@@ -97,7 +100,7 @@ def _duration(text: str) -> float:
         raise argparse.ArgumentTypeError(f"a duration must be more than 0 and at most a week "
                                          f"(168h), got {text!r}")
     return value
-REFINE_EPISODES = _int_at_least(1, "refinement episodes", 10_000_000)
+REFINE_EPISODES = _int_at_least(1, "refinement episodes", MAX_REFINE_EPISODES)
 PORT = _int_at_least(1, "a TCP port", 65_535)
 
 
@@ -117,11 +120,46 @@ def _writable_folder(folder: Path, what: str) -> None:
     os.unlink(probe)
 
 
-def check_output(path: str | Path, suffixes: Sequence[str], option: str = "-o") -> Path:
+def _resolved(path: Path, what: str) -> Path:
+    """``path`` with its links resolved, or a ``UsageError`` for a link loop."""
+    try:
+        return path.resolve(strict=False)
+    except (RuntimeError, OSError):  # RuntimeError: Python 3.11's "Symlink loop from ..."
+        raise UsageError(f"{what}: a loop of symbolic links; choose another path") from None
+
+
+def same_path(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name the same file or folder (through links; either may not exist)."""
+    a, b = Path(a), Path(b)
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):
+        return False
+
+
+def check_not_input(outputs: Sequence[str | Path], *inputs: str | Path | None) -> None:
+    """A ``UsageError`` when an output would write over one of the command's own inputs."""
+    for out in outputs:
+        for given in inputs:
+            if given is not None and same_path(out, given):
+                raise UsageError(f"-o {out} is the input {given}: a command never writes over "
+                                 "its own input; name another output file")
+
+
+def check_output(path: str | Path, suffixes: Sequence[str], option: str = "-o",
+                 inputs: Sequence[str | Path] = ()) -> Path:
     """``path`` if a file of one of ``suffixes`` can be written there; checked before any work
-    (a missing parent folder is fine: it is created when the file is written)."""
+    (a missing parent folder is fine: it is created when the file is written). A link is
+    refused (writing would replace the link, not its target), and so is one of ``inputs``."""
     path = Path(path)
     what = f"{option} {path}"
+    _resolved(path, what)
+    if path.is_symlink():
+        raise UsageError(f"{what} is a symbolic link (to {os.readlink(path)}); a command "
+                         "replaces no link: name the file itself or another path")
+    check_not_input([path], *inputs)
     if path.is_dir():
         raise UsageError(f"{what} is a folder; name a file in it, e.g. "
                          f"{option} {path / ('out' + suffixes[0])}")
@@ -129,7 +167,7 @@ def check_output(path: str | Path, suffixes: Sequence[str], option: str = "-o") 
         raise UsageError(f"{what}: expected a {' or '.join(suffixes)} file, e.g. "
                          f"{option} {path.with_suffix(suffixes[0])}")
     _writable_folder(path.parent, what)
-    if path.exists() and not os.access(path, os.W_OK):
+    if path.exists() and (not os.access(path, os.W_OK) or _mode_read_only(path)):
         raise UsageError(f"{what} is read-only; choose another path")
     sweep_temp_files(path)
     return path
@@ -163,13 +201,68 @@ def glob_escape(name: str) -> str:
     return glob.escape(name)
 
 
+def _mode_read_only(path: Path) -> bool:
+    """No write bit in the mode (root may write anyway, but the user said not to)."""
+    import stat
+
+    return not path.stat().st_mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH)
+
+
+def _folder_path(path: Path, what: str) -> Path:
+    """``path`` checked as a folder to be: no link loop, no dangling link, not a file, nor under
+    one."""
+    _resolved(path, what)
+    if path.is_symlink() and not path.exists():
+        raise UsageError(f"{what} is a symbolic link to {os.readlink(path)}, which does not "
+                         "exist; choose another path")
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"{what} is a file, not a folder; choose another path")
+    return path
+
+
 def check_output_folder(path: str | Path, option: str) -> Path:
     """``path`` if it is, or can become, a folder we can write in."""
     path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise UsageError(f"{option} {path} is a file, not a folder; choose another path")
+    _folder_path(path, f"{option} {path}")
     _writable_folder(path, f"{option} {path}")
     return path
+
+
+def check_cache_folder(path: str | Path, option: str) -> Path:
+    """``path`` if it is, or can become, a cache folder: no link loop, not a file, readable
+    when it exists. A read-only cache is fine (hits are read, misses computed, not stored)."""
+    path = Path(path)
+    what = f"{option} {path}"
+    _folder_path(path, what)
+    if path.is_dir():
+        try:
+            next(os.scandir(path), None)
+        except OSError as err:
+            raise UsageError(f"{what}: cannot read it ({err.strerror}); choose another "
+                             "folder") from None
+    else:
+        existing = path.parent
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+        if not existing.is_dir():
+            raise UsageError(f"{what}: {existing} is a file, not a folder; choose another path")
+    return path
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """While active, a warning prints as one line on stderr (``warning: MESSAGE``), without
+    the file, line and source line Python adds: a user reads what happened, not our code."""
+    import sys
+    import warnings
+
+    def show(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any
+             ) -> None:
+        print(f"warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
 
 
 def check_input(path: str | Path, what: str, hint: str) -> Path:

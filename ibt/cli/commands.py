@@ -21,17 +21,23 @@ from ibt.cli.checks import (
     EXIT_INTERRUPTED,
     EXIT_TERMINATED,
     EXPORT_SUFFIXES,
+    MAX_LEAVES,
+    MAX_REFINE_EPISODES,
     UsageError,
     _again,
     _bt_hint,
     _load_bt,
     _read_json,
     _tree_task,
+    check_cache_folder,
     check_input,
+    check_not_input,
     check_output,
     check_output_folder,
     load_tree_file,
+    one_line_warnings,
     read_input,
+    same_path,
 )
 
 
@@ -173,7 +179,7 @@ def _refine(args: argparse.Namespace) -> int:
     from ibt.distill.tree_file import save_tree_file
     from ibt.refine.by_return import refine, task_config
 
-    out = check_output(args.output, (".json",))
+    out = check_output(args.output, (".json",), inputs=[args.tree])
     doc = load_tree_file(args.tree, args)
     task = _tree_task(doc, args.tree, args)
     overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
@@ -247,7 +253,7 @@ def _synthesize(args: argparse.Namespace) -> int:
     from ibt.bt.json_io import save_json
     from ibt.synth.imitation import NotEquivalentError, imitation_bt
 
-    out = check_output(args.output, (".json",))
+    out = check_output(args.output, (".json",), inputs=[args.tree])
     doc = load_tree_file(args.tree, args)
     task = _tree_task(doc, args.tree, args)
     try:
@@ -276,7 +282,7 @@ def _synthesize(args: argparse.Namespace) -> int:
 def _convert_tree(args: argparse.Namespace) -> int:
     from ibt.distill.tree_file import PICKLE_SUFFIXES, convert_tree_file
 
-    out = check_output(args.output, (".json",))
+    out = check_output(args.output, (".json",), inputs=[args.tree])
     source = check_input(args.tree, "pickled decision-tree file", "pass the .joblib file to "
                          "convert")
     if source.suffix.lower() not in PICKLE_SUFFIXES:
@@ -319,7 +325,16 @@ def _load_policy(path: Path, args: argparse.Namespace):
             raise UsageError("a BT file does not name its task; pass --task with the "
                              "environment it was made for")
         task = resolve_task(args.task)
-        if bt.commands is not None or task.continuous:  # continuous actions (issue 25)
+        if (bt.commands is None) == task.continuous:
+            has = (f"sends commands ({', '.join(bt.commands.dimensions)})" if bt.commands
+                   else f"has discrete actions ({', '.join(bt.action_names)})")
+            wants = ("continuous actions (a Box), whose BTs send commands" if task.continuous
+                     else f"discrete actions ({', '.join(task.action_names)})")
+            known = _matching_tasks(bt)
+            fix = (f"run `{_again(args, '--task', known[0])}`" if len(known) == 1
+                   else "pass the task the BT was made for")
+            raise UsageError(f"{path} {has}, but {task.name} has {wants}; {fix}")
+        if bt.commands is not None:  # continuous actions: a BT with commands
             from ibt.synth.commands import CommandBTPolicy
 
             try:
@@ -387,7 +402,7 @@ def _export(args: argparse.Namespace) -> int:
     from ibt.export.pictures import save_drawing
     from ibt.files import atomic_write_text
 
-    out = check_output(args.output, EXPORT_SUFFIXES[args.format])
+    out = check_output(args.output, EXPORT_SUFFIXES[args.format], inputs=[args.bt])
     if args.format in ("svg", "png"):
         require_dot()
     bt = _load_bt(args.bt)
@@ -416,18 +431,41 @@ def _run_btcpp(args: argparse.Namespace) -> int:
                     args.step_delay)
     print(run.summary())
     if not run.ok:
-        print("error: BehaviorTree.CPP and the Python BT disagree (a bug: please report it)",
+        print(f"error: BehaviorTree.CPP and the Python BT disagree; {_disagreement(xml, run)}",
               file=sys.stderr)
     return 0 if run.ok else 1
 
 
+def _disagreement(xml: Path, run: Any) -> str:
+    """Why the engine and the Python BT may disagree: an edited file, or a bug of ours."""
+    from ibt.export.btcpp import DIFFERS, to_btcpp_xml
+
+    bt = run.bt
+    try:
+        text = xml.read_text(encoding="utf-8")
+        written = {to_btcpp_xml(bt, flavour=f) for f in ("portable", "check-feature")} if bt \
+            else set()
+    except (OSError, ValueError):
+        written = set()
+    if bt is not None and text not in written:
+        return (f"{DIFFERS} for the BT it reads as (edited by hand or by another tool?): "
+                "export the BT again with `python -m ibt export BT.json --format btcpp-xml`")
+    return ("the file is exactly what ibt writes, so this is a bug of ibt: please report it "
+            "with the file")
+
+
 def _pipeline(args: argparse.Namespace) -> int:
     from ibt.runs.engine.agent import callable_agent, sb3_agent
-    from ibt.runs.recommend import recommend
-    from ibt.runs.recommend_files import write_outputs
+    from ibt.runs.owned_folder import FolderError, claim, take
+    from ibt.runs.recommend_files import OUTPUTS
     from ibt.tasks.catalogue import resolve_task
 
+    # every path is checked before any work: the folder, the cache, the checkpoint
     out = check_output_folder(args.output, "-o")
+    cache = check_cache_folder(args.cache_dir or out / "cache", "--cache-dir")
+    if same_path(cache, out):
+        raise UsageError(f"--cache-dir {cache} is the output folder itself; drop --cache-dir "
+                         f"(the cache then goes to {out / 'cache'}) or name another folder")
     task = resolve_task(args.task)
     if args.algo == "callable":
         if args.agent is None or args.checkpoint is not None:
@@ -443,14 +481,29 @@ def _pipeline(args: argparse.Namespace) -> int:
 
             checkpoint = expert_path(task, args.algo)
         check_input(checkpoint, "SB3 checkpoint", "pass your agent's zip with --checkpoint")
-        agent = sb3_agent(task, args.algo, checkpoint)
-    rec = recommend(agent, keep=args.keep, budget=args.budget, leaf_limits=args.leaves,
-                    seed=args.seed, episodes=args.episodes,
-                    cache_dir=args.cache_dir or Path(args.output) / "cache",
-                    progress=not args.quiet, argv=args.argv, env_modules=args.env_module,
-                    time_limit=args.time, max_nodes=args.max_nodes, restarts=args.restarts,
-                    n_jobs=args.jobs or os.cpu_count() or 1)
-    write_outputs(rec, out)
+        check_not_input([out / name for name in OUTPUTS], checkpoint)
+        agent = sb3_agent(task, args.algo, checkpoint)  # its kind and spaces, loaded once
+    try:
+        folder = claim(out, OUTPUTS, force=args.force, cache=cache)
+    except FolderError as err:
+        raise UsageError(str(err)) from None
+    note = folder.note()
+    if note:
+        print(note)
+    from ibt.runs.recommend import recommend
+    from ibt.runs.recommend_files import write_outputs
+
+    take(folder)  # marked as the pipeline's before the long work: a rerun may write there
+    with one_line_warnings():  # e.g. one line for a cache that cannot be written
+        rec = recommend(agent, keep=args.keep, budget=args.budget, leaf_limits=args.leaves,
+                        seed=args.seed, episodes=args.episodes, cache_dir=cache,
+                        progress=not args.quiet, argv=args.argv, env_modules=args.env_module,
+                        time_limit=args.time, max_nodes=args.max_nodes,
+                        restarts=args.restarts, n_jobs=args.jobs or os.cpu_count() or 1)
+    try:
+        write_outputs(rec, folder)
+    except FolderError as err:
+        raise UsageError(str(err)) from None
     verdict = "meets" if rec.met else "MISSES"
     stopped = {"time": f"; the --time budget ended the search after {rec.elapsed:.0f} s",
                "interrupted": "; stopped by Ctrl-C", "terminated": "; stopped by SIGTERM"
@@ -476,23 +529,42 @@ def _keep(text: str) -> float:
 
 
 def _budget(text: str) -> Any:
+    """An argparse type: ``smoke``, a scale (``2x``, at most 1000x) or refinement episodes per
+    leaf limit, at most refine's ``--episodes`` maximum."""
     from ibt.runs.recommend import parse_budget
 
     try:
-        return parse_budget(text)
+        budget = parse_budget(text if len(text) <= 40 else "?")
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err).split(": ", 1)[-1]) from None
+    if (budget.refine_episodes or 0) > MAX_REFINE_EPISODES:
+        raise argparse.ArgumentTypeError(f"refinement episodes per leaf limit must be at most "
+                                         f"{MAX_REFINE_EPISODES:,}, got {text:.40}")
+    return budget
+
+
+MAX_LEAF_LIMITS = 12  #: --leaves: at most this many limits (each is a distillation)
 
 
 def _leaf_limits(text: str) -> tuple[int, ...]:
-    """An argparse type: comma-separated leaf limits, each at least 2."""
+    """An argparse type: comma-separated leaf limits, each from 2 to distill's
+    ``--max-leaf-nodes`` maximum, at most :data:`MAX_LEAF_LIMITS` of them."""
+    parts = [v for v in text.split(",") if v.strip()]
+    if len(parts) > MAX_LEAF_LIMITS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_LEAF_LIMITS} leaf limits, got "
+                                         f"{len(parts)}")
     try:
-        values = tuple(sorted({int(v) for v in text.split(",") if v.strip()}))
+        if any(len(v) > 30 for v in parts):
+            raise ValueError("too long")
+        values = tuple(sorted({int(v) for v in parts}))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected leaf limits such as 4,8,16,32, got "
-                                         f"{text!r}") from None
+                                         f"{text!r:.60}") from None
     if not values or values[0] < 2:
-        raise argparse.ArgumentTypeError(f"leaf limits must be at least 2, got {text!r}")
+        raise argparse.ArgumentTypeError(f"leaf limits must be at least 2, got {text!r:.60}")
+    if values[-1] > MAX_LEAVES:
+        raise argparse.ArgumentTypeError(f"leaf limits must be at most {MAX_LEAVES:,} (as "
+                                         f"distill's --max-leaf-nodes), got {values[-1]:,}")
     return values
 
 

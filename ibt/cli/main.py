@@ -52,7 +52,6 @@ from ibt.cli.checks import (
     LEAVES,
     MAX_NODES,
     PORT,
-    POSITIVE,
     REFINE_EPISODES,
     RESTARTS,
     SEED,
@@ -218,7 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("task", help="a registered task, any gymnasium env id, or MODULE:EnvId")
     pl.add_argument("algo", choices=(*ALGOS, "callable"),
                     help="the agent's algorithm (an SB3 checkpoint), or callable with --agent")
-    pl.add_argument("-o", "--output", required=True, metavar="DIR", help="folder to write")
+    pl.add_argument("-o", "--output", required=True, metavar="DIR",
+                    help="folder to write: new, empty, or one the pipeline wrote before (its "
+                    "marker .ibt-pipeline.json lists its files); see --force")
     pl.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert)")
     pl.add_argument("--agent", metavar="MODULE:FUNCTION",
                     help="with algo callable: a function from one observation to an action "
@@ -241,10 +242,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "or refinement episodes per tree such as 40000 (default 1x)")
     pl.add_argument("--leaves", type=_leaf_limits, default=(4, 8, 16, 32), metavar="L,L,...",
                     help="leaf limits, tried smallest first (default 4,8,16,32)")
-    pl.add_argument("--episodes", type=POSITIVE, default=None,
+    pl.add_argument("--episodes", type=EPISODES, default=None,
                     help="held-out episodes per evaluation (default: 100; 5 with --budget smoke)")
     pl.add_argument("--seed", type=SEED, default=0)
     pl.add_argument("--cache-dir", metavar="DIR", help="cache of every step (default: DIR/cache)")
+    pl.add_argument("--force", action="store_true",
+                    help="write into a folder holding files the pipeline did not write: its "
+                    "output names are replaced (said first), other files left alone; "
+                    "read-only files are never replaced")
     pl.add_argument("--quiet", action="store_true", help="no progress bars")
     pl.set_defaults(func=_pipeline)
     return parser

@@ -274,6 +274,40 @@ def to_btcpp_xml(bt: BehaviorTree, tree_id: str = "MainTree", flavour: str = "po
 
 
 # ------------------------------------------------------------------------------- reading
+DIFFERS = "this file differs from what ibt writes"
+#: the attributes each element ibt writes may carry; any other (BehaviorTree.CPP's ``_skipIf``,
+#: ``_while``, ``_onSuccess``, ``_post`` ...) changes what the engine runs, which ibt does not
+#: model, so a file holding one is refused
+ATTRIBUTES = {"root": {"BTCPP_format", "main_tree_to_execute"}, "BehaviorTree": {"ID"},
+              SCRIPT_CONDITION: {"code", "name"}, "Script": {"code", "name"},
+              CONDITION_ID: {"name", "feature", "op", "threshold"},
+              "Inverter": {"name"}, "Sequence": {"name"}, "Fallback": {"name"}}
+ACTION_ATTRIBUTES = {"name"}  # <Action ID="go" name="go"/>, or Groot2's compact <go/>
+
+
+def _check_attributes(element: ET.Element, allowed: set[str]) -> None:
+    """``ValueError`` naming the attributes of ``element`` that ibt does not write."""
+    extra = sorted(set(element.attrib) - allowed)
+    if extra:
+        raise ValueError(f"<{element.tag}> has the attribute{'s' * (len(extra) > 1)} "
+                         f"{', '.join(extra)}, which ibt does not model ({DIFFERS}: it writes "
+                         f"only {', '.join(sorted(allowed)) or 'none'} there)")
+
+
+def check_layout(root: ET.Element) -> None:
+    """The document's top level is what ibt writes: ``<root>`` holding ``<BehaviorTree>`` and
+    ``<TreeNodesModel>`` only (no ``<include>``, no other element)."""
+    if root.tag != "root":
+        raise ValueError(f"the document element is <{root.tag}>, not <root> ({DIFFERS})")
+    _check_attributes(root, ATTRIBUTES["root"])
+    for child in root:
+        if child.tag == "BehaviorTree":
+            _check_attributes(child, ATTRIBUTES["BehaviorTree"])
+        elif child.tag != "TreeNodesModel":
+            raise ValueError(f"<root> holds <{child.tag}>, which ibt does not model ({DIFFERS}:"
+                             " it writes only <BehaviorTree> and <TreeNodesModel> there)")
+
+
 def _form_condition(match: re.Match[str], code: str, feature_of: dict[str, int]) -> Condition:
     """``W1 * KEY1 + W2 * KEY2 OP NUMBER`` back to a relational condition."""
     w1, k1, w2, k2, op, number = match.groups()
@@ -331,6 +365,9 @@ def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, 
           commands: tuple[list[str], Commands] | None = None) -> Node:
     tag = element.tag
     ident = element.get("ID", "") if tag in ("Action", "Condition") else tag
+    known = ATTRIBUTES.get(ident, ACTION_ATTRIBUTES if ident in action_of else None)
+    if known is not None:  # an unknown node is refused below, by its name
+        _check_attributes(element, known | ({"ID"} if tag in ("Action", "Condition") else set()))
     if ident == SCRIPT_CONDITION:
         return _script_condition(element.get("code", ""), feature_of)
     if ident == "Script" and commands is not None:
@@ -356,9 +393,10 @@ def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, 
     if tag == "Fallback":
         cls = Selector if element.get("name") == SELECTOR_NAME else Fallback
         return cls(tuple(children))
-    raise ValueError(f"unsupported BehaviorTree.CPP node <{tag}>; expected Fallback, Sequence, "
-                     f"Inverter, {SCRIPT_CONDITION}, {CONDITION_ID} or an action of this task "
-                     f"({', '.join(action_of)})")
+    raise ValueError(f"unsupported BehaviorTree.CPP node <{tag}>, which ibt does not model "
+                     f"({DIFFERS}: it writes Fallback, Sequence, Inverter, {SCRIPT_CONDITION}, "
+                     f"{CONDITION_ID}, Script or an action of this task: "
+                     f"{', '.join(action_of)})")
 
 
 def from_btcpp_xml(text: str, feature_names: Seq[str], action_names: Seq[str],
@@ -377,6 +415,7 @@ def from_btcpp_xml(text: str, feature_names: Seq[str], action_names: Seq[str],
         root = ET.fromstring(text)
     except ET.ParseError as err:
         raise ValueError(f"not well-formed XML ({err})") from None
+    check_layout(root)
     wanted = tree_id or root.get("main_tree_to_execute")
     trees = [t for t in root.findall("BehaviorTree") if wanted is None or t.get("ID") == wanted]
     if not trees:

@@ -403,6 +403,7 @@ class EngineRun:
     task: Task
     comparison: RolloutComparison
     rates: dict[str, float]
+    bt: BehaviorTree | None = None  # the XML read back by ibt (what the Python side ran)
 
     @property
     def ok(self) -> bool:
@@ -468,12 +469,27 @@ def xml_commands(xml: str, task: Task, source: str = "the XML") -> Commands:
                              "number")
         if table.setdefault(ident, values) != values:
             raise ValueError(f"{source}: command {ident} writes two different values")
-    if sorted(table) != list(range(len(table))) or not table:
+    if not table:
+        raise ValueError(f"{source} has no Script node that writes a command: it is a BT with "
+                         f"discrete actions, but {task.name} has continuous actions (a Box), "
+                         "whose BTs write commands; pass the task the XML was made for.")
+    if sorted(table) != list(range(len(table))):
         raise ValueError(f"{source}: its Script nodes write command ids {sorted(table)}; "
-                         f"expected 0 to {len(table) - 1} (a BT of {task.name} with commands)")
+                         f"expected 0 to {len(table) - 1}")
     commands = Commands(dims, units, tuple(table[i] for i in range(len(table))))
     task.check_action(commands.array())
     return commands
+
+
+def read_xml_text(path: Path) -> str:
+    """The XML file's text: UTF-8 (as ibt writes it), else ``ValueError`` naming the file."""
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path} is not UTF-8 text (byte 0x{data[err.start]:02x} at offset "
+                         f"{err.start}); ibt writes BehaviorTree.CPP XML in UTF-8: export it "
+                         "again") from None
 
 
 def run_btcpp(path: str | Path, task: Task, episodes: int, groot_port: int | None = None,
@@ -492,7 +508,7 @@ def run_btcpp(path: str | Path, task: Task, episodes: int, groot_port: int | Non
     if not path.is_file():
         raise FileNotFoundError(f"no BehaviorTree.CPP XML at {path}; write one with `python -m "
                                 f"ibt export BT.json --format btcpp-xml -o {path}`")
-    text = path.read_text()
+    text = read_xml_text(path)
     try:
         if task.continuous:  # the command table is the XML's own Script nodes
             commands = xml_commands(text, task, str(path))
@@ -508,4 +524,4 @@ def run_btcpp(path: str | Path, task: Task, episodes: int, groot_port: int | Non
         comparison = compare_rollouts(task, engine, final_seeds(episodes), on_step=pause)
     finally:
         del publisher  # (it has lived GROOT_START_SECONDS at least: see groot_publisher)
-    return EngineRun(task, comparison, ticks_per_second(engine, comparison.states))
+    return EngineRun(task, comparison, ticks_per_second(engine, comparison.states), engine.bt)

@@ -16,9 +16,10 @@ the payload's SHA-256 ``payload_sha256``, code and package versions, git sha, wa
 written, each via a temporary file and a rename. A hit is verified before it is decoded: the
 manifest must parse, name the codec asked for and the same parameters, and record a digest that
 the payload's bytes match. An entry that fails any of these (an edited, truncated or swapped
-payload, a manifest without digest, a payload the codec cannot read) is a miss: it is recomputed
-and overwritten, with one :class:`CacheWarning` naming ``kind/key``. A cache folder that cannot
-be written (read-only) returns the computed value with one warning and writes nothing. A lookup
+payload, a manifest without digest, a payload the codec cannot read, an evaluation payload that
+fails :func:`check_evaluation`) is a miss: it is recomputed and overwritten, with one
+:class:`CacheWarning` naming ``kind/key``. A cache folder that cannot be written (read-only)
+returns the computed values and writes nothing, with one warning per folder and process. A lookup
 with another plain codec than the one the entry was written with is an error
 (:class:`CodecConflict`), never an overwrite: a kind's codec changes with its code version.
 
@@ -36,6 +37,7 @@ import contextlib
 import functools
 import hashlib
 import json
+import math
 import os
 import subprocess
 import time
@@ -206,9 +208,43 @@ def read_entry(entry: str | Path, codec: str, params: dict[str, Any] | None = No
     if payload_digest(data) != digest:
         raise LookupError("the payload does not match its manifest's SHA-256")
     try:
-        return spec.loads(data)
+        value = spec.loads(data)
     except Exception as err:  # a verified payload that does not decode: another schema version
         raise LookupError(f"undecodable payload ({type(err).__name__}: {err})") from None
+    check_evaluation(entry.parent.name, manifest.get("params"), value)
+    return value
+
+
+#: kinds whose JSON payload holds evaluation numbers (checked by :func:`check_evaluation`)
+EVALUATION_KINDS = ("expert-eval", "tree-eval", "bt-eval", "box-eval", "protocol")
+
+
+def _finite_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_evaluation(kind: str, params: Any, value: Any) -> None:
+    """A cheap sanity check of an evaluation payload (a digest proves only that the manifest
+    and the payload agree, not that neither was forged): ``returns`` hold one finite number per
+    episode the key names, means and deviations are finite, deviations and rates not negative,
+    rates at most 1. :class:`LookupError` (a miss, recomputed) says which rule failed."""
+    if kind not in EVALUATION_KINDS or not isinstance(value, dict):
+        return
+    episodes = params.get("episodes") if isinstance(params, dict) else None
+    returns = value.get("returns")
+    if returns is not None:
+        if not isinstance(returns, list) or not all(_finite_number(r) for r in returns):
+            raise LookupError("implausible payload: its returns are not all finite numbers")
+        if isinstance(episodes, int) and len(returns) != episodes:
+            raise LookupError(f"implausible payload: {len(returns)} returns for {episodes} "
+                              "episodes")
+    for name, number in value.items():
+        if name in ("mean_return", "std_return") or name.endswith("_rate"):
+            if not _finite_number(number):
+                raise LookupError(f"implausible payload: {name} is {number!r}")
+            if ((name == "std_return" or name.endswith("_rate")) and number < 0) \
+                    or (name.endswith("_rate") and number > 1):
+                raise LookupError(f"implausible payload: {name} is {number!r}")
 
 
 def load_or_compute(kind: str, params: dict[str, Any], compute: Callable[[], Any], *,
@@ -244,9 +280,17 @@ def load_or_compute(kind: str, params: dict[str, Any], compute: Callable[[], Any
         if created:  # leave no empty folder behind
             with contextlib.suppress(OSError):
                 entry.rmdir()
-        warnings.warn(f"cache entry {kind}/{key} not stored ({type(err).__name__}: {err}); "
-                      "returning the computed value", CacheWarning, stacklevel=2)
+        root = str(Path(cache_dir).resolve())
+        if root not in _UNWRITABLE:  # one warning per cache folder, not one per entry
+            _UNWRITABLE.add(root)
+            warnings.warn(f"cache entry {kind}/{key} not stored ({type(err).__name__}: {err}); "
+                          f"returning the computed value (the cache folder {cache_dir} cannot "
+                          "be written: later entries are computed and not stored, without "
+                          "more warnings)", CacheWarning, stacklevel=2)
     return value
+
+
+_UNWRITABLE: set[str] = set()  # cache folders already reported as not writable
 
 
 def write_entry(entry: Path, suffix: str, data: bytes, manifest: dict[str, Any]) -> None:

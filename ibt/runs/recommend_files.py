@@ -1,5 +1,6 @@
-"""The files of ``python -m ibt pipeline``: ``bt.json``, ``bt.xml``, ``bt.png``, ``front.png``
-and ``report.md`` (:func:`write_outputs`), each written whole or not at all."""
+"""The files of ``python -m ibt pipeline``: ``bt.json``, ``bt.xml``, ``bt.png``, ``bt.svg``,
+``front.png`` and ``report.md`` (:func:`write_outputs`), written as one set into a folder the
+pipeline owns (:mod:`ibt.runs.owned_folder`)."""
 
 from __future__ import annotations
 
@@ -7,9 +8,11 @@ import shlex
 from pathlib import Path
 from typing import Any
 
+from ibt.runs.owned_folder import OwnedFolder, claim, write_set
 from ibt.runs.recommend import Recommendation
 
-OUTPUTS = ("bt.json", "bt.xml", "bt.png", "front.png", "report.md")
+#: the set a run writes; report.md last (it says what the others are)
+OUTPUTS = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
 
 
 # ---------------------------------------------------------------------------- the BT as rules
@@ -224,8 +227,7 @@ def report_text(rec: Recommendation, out: Path) -> str:
              else rec.cache_dir)
     lines = [
         f"# A behavior tree for {rec.task.name}'s {rec.algo} agent", "",
-        *(["**This run was stopped before its last step** (see *How the search went*).", ""]
-          if rec.stopped in ("interrupted", "terminated") else []),
+        *([stopped_note(rec.stopped), ""] if rec.stopped else []),
         verdict, "",
         f"Recommended: a **{c.bt_nodes}-node BT** ({c.bt_method}) of the {c.label} tree at "
         f"leaf limit {c.leaf_limit} ({c.leaves} leaves); every synthesiser's BT of that tree, "
@@ -268,19 +270,48 @@ def report_text(rec: Recommendation, out: Path) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(rec: Recommendation, out: str | Path) -> list[Path]:
-    """Write the five files (and ``bt.svg``) into ``out``; returns their paths."""
+def stopped_note(stopped: str) -> str:
+    """The line under the report's title when the run stopped before its last step."""
+    why = {"time": "its --time budget ran out", "interrupted": "Ctrl-C",
+           "terminated": "SIGTERM"}.get(stopped, stopped)
+    return (f"> **Stopped early** ({why}): this is the best recommendation found before the "
+            "run stopped (see *How the search went*); rerun the same command, with a longer "
+            "`--time` where the budget ran out, to continue: every finished step is cached.")
+
+
+def incomplete_text(rec: Recommendation, out: Path) -> str:
+    """``report.md`` for the milliseconds its set is renamed into place: what to do if a crash
+    leaves it there."""
+    return (f"# Incomplete: {out} was being rewritten\n\n`python -m ibt pipeline` stopped while "
+            "it renamed its new files into place, so this folder may mix files of two runs. "
+            f"Rerun it (every finished step is cached):\n\n```bash\n{commands(rec, out)[0]}\n"
+            "```\n")
+
+
+def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Path]:
+    """Write :data:`OUTPUTS` into ``out`` as one set (:func:`ibt.runs.owned_folder.write_set`:
+    an interrupted write leaves the old set, the new one, or a ``report.md`` saying the set is
+    incomplete); a run stopped early says so under the report's title.
+
+    ``out`` is a folder checked by :func:`ibt.runs.owned_folder.claim` (the CLI claims it
+    before any work), or a path, claimed here (:class:`FolderError` if it holds files the
+    pipeline did not write)."""
     from ibt.bt.json_io import save_json
     from ibt.export.btcpp import to_btcpp_xml
     from ibt.export.pictures import draw_bt
     from ibt.files import atomic_write_text
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    bt = rec.chosen.bt
-    save_json(bt, out / "bt.json")
-    atomic_write_text(out / "bt.xml", to_btcpp_xml(bt))
-    draw_bt(bt, out / "bt", title=f"{rec.task.name}: {bt.node_count}-node BT")
-    draw_front(rec, out / "front.png")
-    atomic_write_text(out / "report.md", report_text(rec, out))
-    return [out / name for name in OUTPUTS]
+    folder = out if isinstance(out, OwnedFolder) else claim(
+        out, OUTPUTS, cache=rec.cache_dir)
+    path = folder.path
+    report = report_text(rec, path)
+
+    def write(tmp: Path) -> None:
+        bt = rec.chosen.bt
+        save_json(bt, tmp / "bt.json")
+        atomic_write_text(tmp / "bt.xml", to_btcpp_xml(bt))
+        draw_bt(bt, tmp / "bt", title=f"{rec.task.name}: {bt.node_count}-node BT")
+        draw_front(rec, tmp / "front.png")
+        atomic_write_text(tmp / "report.md", report)
+
+    return write_set(folder, OUTPUTS, write, incomplete_text(rec, path))
