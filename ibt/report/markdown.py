@@ -475,8 +475,9 @@ def _structure(res: Results) -> str | None:
         "visit, then CMA-ES and pruning) on the published anchors' protocol: each seed's "
         "smallest verified BT rolled out from its JSON document on 1,000 final episodes; means "
         "over seeds. Each row's bar is written by its run: at 12 leaves or fewer on LunarLander, "
-        "the small-BT bar (at most 25 nodes, a mean return of at least 200); otherwise the best published small policy of the "
-        "task (MENS-DT-RL, Costa et al. 2024) at its own size.", structure_markdown(res))
+        "the small-BT bar (at most 25 nodes, a mean return of at least 200); otherwise the "
+        "best published small policy of the task (MENS-DT-RL, Costa et al. 2024) at its own "
+        "size.", structure_markdown(res))
 
 
 def ablation_markdown(res: Results) -> str | None:
