@@ -1,4 +1,4 @@
-"""The headline BTs (``ibt.views.headline``): chosen by their rule from the committed results,
+"""The headline BTs (``ibt.runs.headline`` chooses, ``ibt.views.headline`` writes): chosen by their rule from the committed results,
 and the committed files are the BTs those results evaluated."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ibt.views import headline
+from ibt.runs import headline
+from ibt.views import headline as files
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "data" / "results"
@@ -81,8 +82,8 @@ def test_smoke_reads_the_committed_cache_under_the_paper_budgets(tmp_path):
     import ibt
 
     smoke = ibt.config("smoke", data_dir=tmp_path, figures_dir=tmp_path, paper_dir=tmp_path)
-    lookup = headline.lookup_config(smoke)
+    lookup = files.lookup_config(smoke)
     assert lookup.profile == "paper" and lookup.cache_dir == ROOT / "data" / "cache"
     assert (lookup.figures_dir, lookup.data_dir) == (tmp_path, tmp_path)  # outputs: scratch
     paper = replace(smoke, profile="paper")
-    assert headline.lookup_config(paper) is paper  # the paper profile reads its own cache
+    assert files.lookup_config(paper) is paper  # the paper profile reads its own cache
