@@ -1,5 +1,6 @@
-"""The headline BTs (``ibt.runs.headline`` chooses, ``ibt.views.headline`` writes): chosen by their rule from the committed results,
-and the committed files are the BTs those results evaluated."""
+"""The headline BTs (``ibt.runs.headline`` chooses, ``ibt.views.headline`` writes): chosen by
+their rule from the committed results, and the committed files are the BTs those results
+evaluated."""
 
 from __future__ import annotations
 
