@@ -253,11 +253,10 @@ def test_ticks_per_second_measures_both_executors():
 
 # ------------------------------------------------------------------------------ README
 def readme_python_example() -> str:
-    """The Python block of the README's section "Deploy in BehaviorTree.CPP / ROS 2"."""
-    text = (ROOT / "README.md").read_text()
-    section = text.split("## Deploy in BehaviorTree.CPP / ROS 2", 1)[1].split("\n## ", 1)[0]
-    blocks = re.findall(r"```python\n(.*?)```", section, flags=re.DOTALL)
-    assert len(blocks) == 1, "the deployment section has exactly one Python block"
+    """The Python block of the deployment page, ``docs/deploy.md`` (the README links it)."""
+    text = (ROOT / "docs" / "deploy.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+    assert len(blocks) == 1, "the deployment page has exactly one Python block"
     return blocks[0]
 
 

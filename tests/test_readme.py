@@ -30,7 +30,6 @@ BLOCKS = {
     "python -m ibt distill MyEnv-v0": ("run", "the single steps on the README's my_envs"),
     "# my_envs.py": ("run", "the user's module (with a MyEnv class added)"),
     "dask scheduler": ("skip", "needs a Dask cluster"),
-    "import behaviortreepy as btpy": ("elsewhere", "tests/test_btcpp_engine.py runs it"),
 }
 #: budget flags appended to a command so that the block runs in seconds here
 FAST = {"distill": ["--iterations", "2", "--labels", "100", "--selection-episodes", "2"],
@@ -175,4 +174,37 @@ def test_highway_minutes_are_the_csvs():
     table = pd.read_csv(ROOT / "data" / "results" / "distillation.csv")
     minutes = table.loc[table.task == "highway-fast-v0", "wall_seconds"] / 60
     said = f"10 iterations took {minutes.min():.1f} to {minutes.max():.1f} minutes"
-    assert said in " ".join(README.read_text().split())
+    assert said in " ".join((ROOT / "paper" / "method.md").read_text().split())
+
+
+def test_the_readme_is_one_screen_first():
+    # Expect: short, the lead GIF and the two commands before the headline table
+    text = README.read_text()
+    assert len(text.splitlines()) <= 250
+    first = text.index
+    assert first("figures/anim/") < first("make figures") < first("make test") < first(
+        HEADLINE_BEGIN_MARK)
+
+
+HEADLINE_BEGIN_MARK = "<!-- headline:begin"
+
+
+def test_the_headline_table_is_the_committed_csv():
+    # Expect: the README's headline block is exactly what headline.csv renders to, and every
+    # file a row names is committed
+    from ibt.report.markdown import HEADLINE_BEGIN, HEADLINE_END, front_page_block
+
+    headline = pd.read_csv(ROOT / "data" / "results" / "headline.csv")
+    text = README.read_text()
+    shown = HEADLINE_BEGIN + text.split(HEADLINE_BEGIN, 1)[1].split(HEADLINE_END, 1)[0] + \
+        HEADLINE_END
+    assert shown == front_page_block(headline)
+    for column in ("json_file", "xml_file", "png_file", "svg_file", "gif_file"):
+        assert all((ROOT / path).is_file() for path in headline[column]), column
+
+
+def test_no_public_text_cites_the_tracker():
+    pattern = re.compile(r"issues? #?[0-9]+|the issue's", re.I)
+    pages = [README, *(ROOT / "docs").rglob("*.md"), *(ROOT / "paper").rglob("*.md")]
+    cited = [f"{p.name}: {m.group(0)}" for p in pages for m in pattern.finditer(p.read_text())]
+    assert cited == []

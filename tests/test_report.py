@@ -329,7 +329,7 @@ def test_report_marks_experts_that_do_not_count(tmp_path):
     _write(tmp_path, "distillation", _grid(cells))
     _experts(tmp_path, {("highway-fast-v0", "a2c"): "constant-action"})
     res = stats.Results(tmp_path)
-    block = markdown.readme_block(res)
+    block = markdown.results_markdown(res)  # the grid's table: paper/results.md
     assert "| highway-fast-v0 | a2c † |" in block
     assert "† highway-fast-v0 a2c: constant-action expert (evidence highway-fast-v0 a2c)" in block
     assert "95 % CI" not in block and "range, min to max" in block
@@ -420,7 +420,7 @@ def test_readme_blocks_replace_only_their_marked_section(tmp_path):
                                 markdown.DEVIATIONS_BEGIN, markdown.DEVIATIONS_END)
     text = readme.read_text()
     assert "new" in text and "old" not in text and text.endswith("after\n")
-    assert "**Retention.**" in text
+    assert "retention" in text and "paper/reproduction.md" in text  # points to the list
     unchanged = f"{markdown.README_BEGIN}\nnew\n{markdown.README_END}"
     assert not markdown.update_readme(readme, unchanged)
     (tmp_path / "bad.md").write_text("no markers")

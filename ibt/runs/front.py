@@ -97,7 +97,7 @@ ANCHORS = (
 SMALL_BARS: dict[str, dict[str, Any]] = {
     "LunarLander-v3": {"up_to_leaves": 12, "bar_max_bt_nodes": 25, "bar_min_return": 200.0,
                        "bar_strict": False, "bar_min_share": None,
-                       "bar_source": "small-BT target: solved by a BT small enough to read whole"}}
+                       "bar_source": "the small-BT bar"}}
 BAR_SEEDS = 3  # the bars are means over this many seeds
 
 
