@@ -30,7 +30,8 @@ _PATH = re.compile(r"(?<![\w/.:<-])((?:" + "|".join(TOP) + r")/[\w./<>{},*+-]*)"
 _LINK = re.compile(r"\]\(([^)\s]+)\)")
 _INLINE = re.compile(r"`([^`]+)`")
 _MODULE = re.compile(r"(?<![\w./])ibt(?:\.[A-Za-z_]\w*)+")
-_COMMAND = re.compile(r"python -m ibt[ \t]+([a-z][a-z-]*)(?![a-z-]|:)([^`\n#]*)")  # "CMD:" is output
+# a sub-command followed by ":" is a message the CLI printed, not a command
+_COMMAND = re.compile(r"python -m ibt[ \t]+([a-z][a-z-]*)(?![a-z-]|:)([^`\n#]*)")
 _FENCE = re.compile(r"^```\w*\n(.*?)^```", re.M | re.S)
 
 
