@@ -68,7 +68,7 @@ def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: li
                ) -> Returns:
     """A policy's returns on ``seeds`` (consecutive), cached under ``what`` (``bt``: a BT's
     digest, ``tree``: a tree's, else an agent's or the random policy's identity)."""
-    params = {"task": task.name, "episodes": len(seeds), "first_seed": seeds[0], **what}
+    params = {"task": task.key, "episodes": len(seeds), "first_seed": seeds[0], **what}
 
     def compute() -> dict[str, Any]:
         return {"returns": [float(r) for r in rollout(task, act(), seeds).returns]}
@@ -117,7 +117,7 @@ def distil(cfg: Config, agent: Agent, leaves: int, seed: int, learner: str) -> A
     relational = learner == "relational"
     dcfg = (distill_config(cfg, agent.task, METHOD, max_leaf_nodes=leaves) if relational
             else distill_config(cfg, agent.task, max_leaf_nodes=leaves))
-    params = {"task": agent.task.name, "algo": agent.algo, "seed": seed,
+    params = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
               "config": dcfg.as_params(),
               **({"learner": learner_params()} if relational else {}),
               "expert_sha256": agent.digest}
@@ -146,7 +146,7 @@ def _box_commands(cfg: Config, agent: Agent, leaves: int, seed: int) -> Any:
 
     task = agent.task
     config = box_config(cfg, task, box_method(agent), leaves)
-    params = {"task": task.name, "algo": agent.algo, "seed": seed, "config": config.as_params(),
+    params = {"task": task.key, "algo": agent.algo, "seed": seed, "config": config.as_params(),
               "expert_sha256": agent.digest}
 
     def fit() -> dict[str, Any]:
@@ -157,7 +157,7 @@ def _box_commands(cfg: Config, agent: Agent, leaves: int, seed: int) -> Any:
     run = load_or_compute("box-distill", params, fit, cache_dir=cfg.cache_dir, codec="json",
                           refresh=cfg.refresh)
     n = min(BOX_SELECTION_EPISODES, cfg.selection_episodes)
-    merge = {"task": task.name, "algo": agent.algo, "seed": seed,
+    merge = {"task": task.key, "algo": agent.algo, "seed": seed,
              "tree": doc_digest(run["tree"]), "episodes": n, "tolerance": COMMAND_TOLERANCE,
              "decimals": DECIMALS, "expert_sha256": agent.digest}
 
@@ -203,7 +203,7 @@ def refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float = 1.0,
         from ibt.synth.commands import DECIMALS
 
         config = refine_config(cfg, task, scale, episodes, commands=True)
-        params = {"task": task.name, "algo": agent.algo, "seed": seed,
+        params = {"task": task.key, "algo": agent.algo, "seed": seed,
                   "tree": doc_digest(tree.to_doc()), "config": config.as_params(),
                   "decimals": DECIMALS}
 
@@ -258,7 +258,7 @@ def evolve_one(cfg: Config, agent: Agent, sources: list[Any], config: Any, seed:
 
     _import_modules(env_modules)
     task = agent.task
-    params: dict[str, Any] = {"task": task.name, "algo": agent.algo, "seed": seed,
+    params: dict[str, Any] = {"task": task.key, "algo": agent.algo, "seed": seed,
                               "sources": [tree_digest(t) for t in sources],
                               "config": config.as_params(), "expert_sha256": agent.digest}
     if relational:
@@ -340,7 +340,7 @@ def synthesise(cfg: Config, agent: Agent, tree: Any, seed: int) -> dict[str, Any
     bts = {}
     for name in names:
         synthesiser = SYNTHESISERS[name]
-        params: dict[str, Any] = {"task": task.name, "algo": agent.algo, "method": name,
+        params: dict[str, Any] = {"task": task.key, "algo": agent.algo, "method": name,
                                   "seed": seed, "source_method": "pipeline",
                                   "tree": tree_key(tree)}
         if synthesiser.version is not None:
