@@ -188,8 +188,10 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
             problem = _bad_obs(task, slot_obs[s], shape)
             if problem is not None:
                 call = "reset" if slot_length[s] == 0 else "step"
+                fix = (f"make its {call}() return finite observations" if "finite" in problem
+                       else f"make its {call}() return observations of its observation_space")
                 raise _fault(task, call, int(seeds[slot_episode[s]]), slot_length[s], problem,
-                             f"make its {call}() return observations of its observation_space")
+                             fix)
         raise _fault(task, "step", int(seeds[slot_episode[active[0]]]), slot_length[active[0]],
                      "its observations cannot be stacked into a batch",
                      "return numeric arrays of its observation_space")

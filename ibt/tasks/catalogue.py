@@ -54,6 +54,10 @@ def _check_box(task: Task) -> None:
     bad = ~(np.isfinite(low) & np.isfinite(high) & np.isfinite(span) & (low < high))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
+        if np.isfinite(low[i]) and np.isfinite(high[i]) and low[i] < high[i]:
+            raise TaskMismatch(f"task {task.name}: feature {task.feature_names[i]!r} has the box "
+                               f"[{low[i]}, {high[i]}], too wide to draw numbers from (its width "
+                               "overflows); give the range of values the feature really takes")
         raise TaskMismatch(f"task {task.name}: feature {task.feature_names[i]!r} has the box "
                            f"[{low[i]}, {high[i]}]; low and high must be finite numbers with "
                            "low < high (the range of values random test states are drawn from)")
