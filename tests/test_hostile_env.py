@@ -251,12 +251,12 @@ def test_the_report_flags_retention_above_the_agent_beyond_noise():
     rec = SimpleNamespace(episodes=100, agent=returns(10.0, 1.0), random=returns(0.0, 1.0),
                           bt=returns(12.0, 1.0), retention=120.0, agent_choice=10.0,
                           random_choice=0.0, candidates=[candidate(101.0), candidate(130.0)])
-    text = " ".join(beyond_the_agent(rec))  # type: ignore[arg-type]
+    text = " ".join(beyond_the_agent(rec))
     assert "120.0 %" in text and "130.0 %" in text and "101.0" not in text  # within noise
     rec.retention, rec.bt, rec.candidates = 100.5, returns(10.05, 1.0), [candidate(99.0)]
-    assert beyond_the_agent(rec) == []  # type: ignore[arg-type]
+    assert beyond_the_agent(rec) == []
     rec.retention = float("nan")
-    assert "Retention undefined" in beyond_the_agent(rec)[0]  # type: ignore[arg-type]
+    assert "Retention undefined" in beyond_the_agent(rec)[0]
 
 
 def test_the_episode_cap_keys_the_cache_and_cuts_an_endless_environment(tmp_path):
