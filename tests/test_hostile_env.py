@@ -190,7 +190,10 @@ def observe(case: Case, materials: Path, folder: Path) -> Observed:
                    and (not p.startswith("out/") or p == f"out/{NOTES}")]
     else:
         changed = sorted(p for p in set(before) | set(after) if before.get(p) != after.get(p))
-    return Observed(ran.returncode, ran.stdout, ran.stderr, changed)
+    def plain(text: str) -> str:  # the case's folders as the doc names them
+        return text.replace(str(folder / "out"), "OUT").replace(str(folder), ".")
+
+    return Observed(ran.returncode, plain(ran.stdout), plain(ran.stderr), changed)
 
 
 def observe_all(cases: list[Case], root: Path, workers: int = 2) -> dict[str, Future]:
