@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ibt.tasks.builtin import BUILTIN, CONTINUOUS
 from ibt.tasks.settings import DEFAULT_MAX_EPISODE_STEPS
 from ibt.tasks.task import Task
 
@@ -102,11 +103,15 @@ def _bad_obs(task: Task, obs: Any, shape: tuple[int, ...] | None) -> str | None:
     return None
 
 
-def _capped(env: Any) -> Any:
-    """``env`` with a time limit: an environment that sets none is cut at
+#: the catalogue's own tasks: their episodes end (highway's by its own clock, with no limit set)
+_BUILTIN = frozenset(t.name for t in (*BUILTIN, *CONTINUOUS))
+
+
+def _capped(env: Any, task: Task) -> Any:
+    """``env`` with a time limit: an environment that sets none (a user's) is cut at
     :data:`DEFAULT_MAX_EPISODE_STEPS` (with a warning), so that no rollout runs forever."""
     spec = getattr(env, "spec", None)
-    if spec is not None and spec.max_episode_steps is not None:
+    if task.name in _BUILTIN or (spec is not None and spec.max_episode_steps is not None):
         return env
     import warnings
 
@@ -141,7 +146,7 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
     seeds = list(seeds)
     box = task.continuous  # actions are vectors (rows of ``act``'s answer), not indices
     n_slots = max(1, min(n_envs, len(seeds)))
-    envs = [_capped(task.make_env(**(env_kwargs or {}))) for _ in range(n_slots)]
+    envs = [_capped(task.make_env(**(env_kwargs or {})), task) for _ in range(n_slots)]
     returns = np.zeros(len(seeds))
     lengths = np.zeros(len(seeds), dtype=np.int64)
     infos: list[dict[str, Any]] = [{} for _ in seeds]

@@ -278,7 +278,8 @@ def with_episode_cap(task: Task, steps: int | None = None) -> tuple[Task, str | 
     the task's cache key (:attr:`Task.key`)."""
     if steps is not None:
         return replace(task, episode_cap=int(steps)), None
-    if task.episode_cap is not None or _own_limit(task) is not None:
+    if (task.episode_cap is not None or task.name in BUILTIN_BY_NAME
+            or _own_limit(task) is not None):  # the catalogue's own episodes all end
         return task, None
     notice = (f"notice: {task.gym_id} sets no max_episode_steps, so its episodes are cut at "
               f"{DEFAULT_MAX_EPISODE_STEPS:,} steps; choose another cut with "
