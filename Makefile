@@ -31,8 +31,7 @@ figures: setup ## re-run every notebook (paper profile, cached results) and rewr
 	for nb in $(NOTEBOOKS); do \
 		echo "== $$nb"; \
 		IBT_PROFILE=paper IBT_CACHE_READS=$(CURDIR)/build/cache-reads \
-			$(BIN)/papermill --no-progress-bar --cwd notebooks $$nb $$nb; \
-		$(BIN)/python -m ibt.notebooks scrub $$nb; \
+			$(BIN)/python -m ibt.notebooks run $$nb; \
 	done; \
 	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start )); \
 	$(BIN)/python -m ibt.runs.cache_admin stale --reads build/cache-reads --count  # what this run skipped, in one line
@@ -70,8 +69,12 @@ test: setup lint ## ruff + unit/property tests + every notebook under the smoke 
 test-slow: setup ## the slow tests too (training determinism, full-size runs)
 	$(BIN)/python -m pytest -q
 
-lab: setup ## open JupyterLab on the notebooks
-	$(BIN)/jupyter lab notebooks
+lab: setup ## open JupyterLab on the notebooks (also as root, or headless: open the URL it prints)
+	@flags="--no-browser"; \
+	if [ -n "$$DISPLAY$$WAYLAND_DISPLAY" ] || [ "$$(uname)" = Darwin ]; then flags=""; fi; \
+	if [ "$$(id -u)" = 0 ]; then flags="$$flags --allow-root"; fi; \
+	echo "JupyterLab: open the http://localhost:8888/lab?token=... URL printed below in a browser (Ctrl-C stops it)"; \
+	$(BIN)/jupyter lab $$flags notebooks
 
 lock: ## re-resolve requirements.in into environment.lock (in a scratch venv)
 	rm -rf build/lockenv && $(PYTHON) -m venv build/lockenv

@@ -1,4 +1,10 @@
-"""Notebook housekeeping: scrub volatile metadata after papermill runs; time ``make figures``.
+"""Notebook housekeeping: run a notebook in place, scrub volatile metadata after papermill runs,
+time ``make figures``.
+
+``python -m ibt.notebooks run NB...`` executes each notebook in place as ``papermill --cwd
+notebooks NB NB`` does (parameters as committed, ``IBT_PROFILE`` from the environment), with the
+kernel on local IPC sockets rather than TCP ports: papermill's command line has no switch for
+that, and a TCP kernel warns on every run that it talks unencrypted. Then it scrubs the notebook.
 
 ``python -m ibt.notebooks scrub NB...`` removes timings, kernel ids and papermill's run records
 so that a re-executed notebook differs from the committed one only where results changed. It
@@ -48,6 +54,23 @@ def scrub(path: str | Path) -> None:
     atomic_write_text(path, nbformat.writes(nb) + "\n")
 
 
+def run(path: str | Path, cwd: str | Path | None = None) -> None:
+    """Execute the notebook at ``path`` in place with papermill (working directory ``cwd``, by
+    default the notebook's folder), its kernel on IPC sockets where the OS has them; then
+    :func:`scrub` it."""
+    import os
+
+    import papermill
+    from traitlets.config import Config
+
+    path = Path(path)
+    transport = "ipc" if os.name == "posix" else "tcp"  # Windows has no Unix sockets
+    papermill.execute_notebook(str(path), str(path), cwd=str(cwd or path.parent),
+                               progress_bar=False,
+                               config=Config(KernelManager={"transport": transport}))
+    scrub(path)
+
+
 def _without_widget_view(output: dict) -> dict | None:
     """``output`` without its widget view; ``None`` when nothing but the widget's repr is left."""
     data = output.get("data")
@@ -77,18 +100,26 @@ def record_time(seconds: float, data_dir: Path | None = None) -> Path:
     return target
 
 
-USAGE = "usage: python -m ibt.notebooks scrub NOTEBOOK... | record-time SECONDS"
+USAGE = "usage: python -m ibt.notebooks run NOTEBOOK... | scrub NOTEBOOK... | record-time SECONDS"
 
 
 def main(argv: list[str]) -> int:
     if len(argv) == 2 and argv[0] == "record-time":
         print(f"make figures took {float(argv[1]):.0f} s: {record_time(float(argv[1]))}")
         return 0
-    if len(argv) < 2 or argv[0] != "scrub":
+    if len(argv) < 2 or argv[0] not in ("run", "scrub"):
         print(USAGE, file=sys.stderr)
         return 2
+    missing = [name for name in argv[1:] if not Path(name).is_file()]
+    if missing:
+        print(f"no notebook at {missing[0]}; give paths such as notebooks/00_quickstart.ipynb",
+              file=sys.stderr)
+        return 2
     for name in argv[1:]:
-        scrub(name)
+        if argv[0] == "run":
+            run(name)
+        else:
+            scrub(name)
     return 0
 
 

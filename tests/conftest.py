@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -30,3 +31,24 @@ def cartpole_expert():
     from ibt.experts.expert import load_expert
 
     return load_expert(get_task("CartPole-v1"), "ppo")
+
+
+@pytest.fixture(scope="session")
+def agents(tmp_path_factory):
+    """A small PPO checkpoint for each toy task of the pipeline tests (seconds; quality does
+    not matter here)."""
+    import importlib
+
+    for module in ("tests.fixtures.toy_line", "tests.fixtures.toy_cart"):  # the users' modules
+        importlib.import_module(module)
+    from ibt.experts.expert import train_expert
+    from ibt.tasks.catalogue import resolve_task
+    from ibt.tasks.settings import hp
+
+    root = tmp_path_factory.mktemp("agents")
+    line = replace(resolve_task("ToyLine-v0"),
+                   experts=(("ppo", hp(1024, 1, n_steps=256, batch_size=64, gamma=0.9)),))
+    train_expert(line, "ppo", root / "line.zip", progress=False)
+    train_expert(resolve_task("ToyCart-v0"), "ppo", root / "cart.zip", timesteps=2048,
+                 progress=False)
+    return root

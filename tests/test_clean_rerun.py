@@ -70,3 +70,18 @@ def test_unread_cache_entries_are_one_line_with_the_command_that_lists_them(tmp_
     assert f"python -m ibt.runs.cache_admin {' '.join(argv)}" in lines[0]
     assert cache_admin.main(argv) == 0
     assert len(capsys.readouterr().out.strip().splitlines()) == 4  # the list itself
+
+
+def test_nothing_unread_is_no_line_at_all(tmp_path, capsys):
+    # Expect: a clone whose every cache entry was read prints nothing at the end of make figures
+    from ibt.runs import cache_admin
+    from ibt.runs.cache import cache_key
+
+    cache = tmp_path / "cache"
+    load_or_compute("tree-eval", {"i": 0}, lambda: {"x": 1}, cache_dir=cache, codec="json")
+    reads = tmp_path / "reads"
+    reads.mkdir()
+    (reads / "reads-1.txt").write_text(f"tree-eval/{cache_key('tree-eval', {'i': 0})}\n")
+    assert cache_admin.main(["stale", "--cache-dir", str(cache), "--reads", str(reads),
+                             "--count"]) == 0
+    assert capsys.readouterr().out == ""

@@ -369,7 +369,7 @@ def _searched(nodes: list[int], returns: list[float]) -> pd.DataFrame:
          "bt_nodes": n, "relational_tests": 2, "protocol_mean_return": r,
          "share_at_threshold": 0.8, "cpu_seconds": 600.0, "bar_max_bt_nodes": 25,
          "bar_min_return": 200.0, "bar_strict": False, "bar_min_share": None,
-         "bar_source": "issue 26", "bar_seeds": 3}
+         "bar_source": "small-BT target", "bar_seeds": 3}
         for s, (n, r) in enumerate(zip(nodes, returns, strict=True))])
 
 

@@ -53,7 +53,7 @@ def test_small_limits_are_judged_by_the_small_bt_bar_not_the_anchor(tmp_path):
     text = _table(tmp_path, _rows([205.0, 201.0, 200.0], nodes=[21, 18, 25], share=0.7,
                                   limit=8))
     assert text.endswith("| met |")
-    assert "issues 22 and 26" in text and "MENS-DT-RL" not in text
+    assert "small-BT target" in text and "MENS-DT-RL" not in text
     assert _table(tmp_path, _rows([205.0] * 3, nodes=26, share=0.7, limit=12)
                   ).endswith("| missed |")
 

@@ -142,7 +142,7 @@ def test_state_explorer_static_fallback(batch_env, cartpole_bt, capsys):
     out = widgets.state_explorer(cartpole_bt, "CartPole-v1", [0.0, 0.1, 0.02, -0.3], AXES, n=20)
     assert out is None
     kinds = [type(o).__name__ for o in shown]
-    assert kinds == ["Markdown", "DataFrame", "Figure", "Digraph"]
+    assert kinds == ["Markdown", "DataFrame", "Figure", "InlineDigraph"]  # PNG and SVG
     assert "IBT_PROFILE=smoke" in shown[0].data
     assert "decision: push_" in capsys.readouterr().out
     batch_env.delenv("IBT_PROFILE")
@@ -190,7 +190,8 @@ def test_schedule_explorer_static_fallback(batch_env):
     batch_env.setattr(widgets, "_display", lambda *objects: shown.extend(objects))
     assert widgets.schedule_explorer(fake_view, ["linear"], [4], "linear", 4,
                                      interactive=False) is None
-    assert [type(o).__name__ for o in shown] == ["Markdown", "HTML", "Digraph", "Digraph"]
+    assert [type(o).__name__ for o in shown] == ["Markdown", "HTML", "InlineDigraph",
+                                                    "InlineDigraph"]
     assert "leaf limit" not in shown[1].data and "at most 4 leaves" in shown[1].data
 
 

@@ -119,7 +119,8 @@ def _distill(args: argparse.Namespace) -> int:
                     "env_modules": args.env_module})
     print(f"{task.name}/{args.algo}/{args.method}: best tree at iteration {run.best_index} "
           f"({best['leaves']} leaves of at most {config.max_leaf_nodes}, {best['nodes']} nodes, "
-          f"held-out return {best['selection_mean']:.2f}); {run.expert_labels} expert labels; "
+          f"mean return {best['selection_mean']:.2f} on {config.selection_episodes} selection "
+          f"episodes); {run.expert_labels} expert labels; "
           f"written to {out}")
     return 0
 
@@ -160,8 +161,9 @@ def _distill_box(task: Any, expert: Any, out: Path, args: argparse.Namespace) ->
                     "env_modules": args.env_module})
     print(f"{task.name}/{args.algo}/{args.method}: best regression tree at iteration "
           f"{run.best_index} ({best['leaves']} leaves of at most {config.max_leaf_nodes}, "
-          f"held-out return {best['selection_mean']:.2f}); {chosen.n_commands} commands "
-          f"(held-out return {rows[-1]['mean_return']:.2f}): "
+          f"mean return {best['selection_mean']:.2f} on {config.selection_episodes} selection "
+          f"episodes); {chosen.n_commands} commands (mean return "
+          f"{rows[-1]['mean_return']:.2f} on {len(seeds)} other episodes): "
           f"{'; '.join(chosen.task.action_names)}; written to {out}")
     return 0
 
@@ -194,8 +196,9 @@ def _refine(args: argparse.Namespace) -> int:
     start = (f"{given}" if given == merged
              else f"{given} ({merged} once leaves that always decide alike are merged)")
     print(f"{task.name}: {start} -> {record.best.n_leaves} leaves, "
-          f"held-out return {before:.2f} -> {after:.2f} ({record.episodes} refinement "
-          f"episodes, {record.cpu_seconds:.0f} s CPU); written to {out}")
+          f"mean return {before:.2f} -> {after:.2f} on {config.selection_episodes} held-out "
+          f"episodes of refinement's own, not distill's ({record.episodes} refinement episodes, "
+          f"{record.cpu_seconds:.0f} s CPU); written to {out}")
     return 0
 
 
@@ -231,9 +234,10 @@ def _refine_commands(doc: dict[str, Any], task: Any, out: Path, overrides: dict[
         "env_modules": args.env_module})
     before, after = record.selection_means[0], record.selection_means[record.best_index]
     print(f"{box.name}: {record.best.n_leaves} leaves, {record.best.n_commands} commands "
-          f"({'; '.join(chosen.task.action_names)}), held-out return {before:.2f} -> "
-          f"{after:.2f} ({record.episodes} refinement episodes, {record.cpu_seconds:.0f} s "
-          f"CPU); written to {out}")
+          f"({'; '.join(chosen.task.action_names)}), mean return {before:.2f} -> "
+          f"{after:.2f} on {config.selection_episodes} held-out episodes of refinement's own, "
+          f"not distill's ({record.episodes} refinement episodes, "
+          f"{record.cpu_seconds:.0f} s CPU); written to {out}")
     return 0
 
 

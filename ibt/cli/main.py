@@ -10,9 +10,9 @@
     python -m ibt pipeline CartPole-v1 ppo -o out/        # all of it: a recommended BT + report
 
 Your own environment: ``--env-module PKG.MODULE`` (every subcommand) imports a module that
-registers gymnasium environments and, optionally, ibt tasks (``ibt.tasks.catalogue.register_task``,
-for
-readable feature and action names); gymnasium's ``PKG.MODULE:EnvId`` works as a task name too.
+registers gymnasium environments and, optionally, ibt tasks with readable feature and action
+names (``ibt.tasks.catalogue.register_task``); gymnasium's ``PKG.MODULE:EnvId`` works as a task
+name too.
 ``distill`` takes any gymnasium env id with an SB3 checkpoint (``--checkpoint``); the features
 are then named x0, x1, ... and tasks without a budget get a 16-leaf tree.
 
@@ -172,8 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
     syn.set_defaults(func=_synthesize)
 
     ev = command("evaluate", help="returns of a BT (.json), a decision tree (.json) or an "
-                 "expert (dqn/ppo/a2c) on the fixed evaluation episodes")
-    ev.add_argument("policy", help="BT JSON, decision-tree file, or dqn|ppo|a2c")
+                 f"expert ({'/'.join(ALGOS)}) on the fixed evaluation episodes")
+    ev.add_argument("policy", help=f"BT JSON, decision-tree file, or {'|'.join(ALGOS)}")
     ev.add_argument("--task", help="task (required for BT files and experts)")
     ev.add_argument("--checkpoint", help="SB3 checkpoint for an expert; a checkpoint is code "
                     "(pickles): use only ones from a trusted source")

@@ -17,24 +17,14 @@ few named commands so the paper's synthesis applies to command ids.
 
 from __future__ import annotations
 
-import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 from sklearn.tree import DecisionTreeRegressor
-from tqdm import tqdm
 
-from ibt.distill.loop import (
-    METHODS,
-    Distillation,
-    choose_best,
-    iteration_seeds,
-    mix,
-    record_iteration,
-    resample,
-)
-from ibt.evaluate.rollouts import rollout, selection_seeds
+from ibt.distill.loop import METHODS, Distillation, interactive_loop, mix
 from ibt.experts.expert import Expert
 from ibt.tasks.settings import BOX_MAX_LEAF_NODES
 from ibt.tasks.task import Task
@@ -63,6 +53,15 @@ class BoxDistillConfig:
             raise ValueError("n_iterations and labels_per_iteration must be positive")
         if self.max_leaf_nodes is not None and self.max_leaf_nodes < 2:
             raise ValueError(f"max_leaf_nodes must be at least 2, got {self.max_leaf_nodes}")
+
+    @property
+    def beta(self) -> Any:
+        """The method's beta schedule (the expert's probability per iteration)."""
+        return METHODS[self.method].schedule
+
+    @property
+    def weighted(self) -> bool:
+        return METHODS[self.method].weighted
 
     def as_params(self) -> dict[str, Any]:
         return asdict(self)
@@ -96,64 +95,49 @@ def box_tree_policy(task: Task, tree: DecisionTreeRegressor):
     return lambda obs: tree_actions(tree, task.features(obs))
 
 
+@dataclass(frozen=True)
+class RegressionLearner:
+    """A regression tree of action vectors: the interactive loop's learner on a Box task."""
+
+    config: BoxDistillConfig
+    seed: int
+
+    def label(self, expert: Expert, obs: np.ndarray, weighted: bool
+              ) -> tuple[np.ndarray, np.ndarray]:
+        if weighted:
+            return expert.label(obs)
+        return expert.act(obs), np.ones(len(obs))  # the weights are not used: one pass
+
+    def fit(self, x: np.ndarray, y: np.ndarray) -> DecisionTreeRegressor:
+        return DecisionTreeRegressor(max_leaf_nodes=self.config.max_leaf_nodes,
+                                     max_depth=self.config.max_depth,
+                                     random_state=self.seed).fit(x, y)
+
+    def signature(self, tree: DecisionTreeRegressor) -> bytes:
+        return regression_signature(tree)
+
+    def predictor(self, tree: DecisionTreeRegressor) -> Callable[[np.ndarray], np.ndarray]:
+        return lambda features: tree_actions(tree, features)
+
+    def mix(self, expert_actions: np.ndarray, tree_actions: np.ndarray, beta: float,
+            rng: np.random.Generator) -> np.ndarray:
+        use_expert = mix(np.arange(len(expert_actions)), np.full(len(expert_actions), -1),
+                         beta, rng) >= 0
+        return np.where(use_expert[:, None], expert_actions, tree_actions)
+
+
 def distill_box(task: Task, expert: Expert, config: BoxDistillConfig, seed: int = 0, *,
                 progress: bool = True) -> Distillation:
-    """Run the interactive loop on a Box task; see the module docstring."""
+    """Run the interactive loop on a Box task (:func:`ibt.distill.loop.interactive_loop` with
+    a :class:`RegressionLearner`); see the module docstring."""
     if not task.continuous or not expert.continuous:
         raise ValueError(f"{task.name} acts in a {'Box' if task.continuous else 'Discrete'} "
                          "space; distill_box is for Box tasks and their experts")
     if expert.n_actions != task.n_actions:
         raise ValueError(f"the expert acts in {expert.n_actions} dimensions, {task.name} in "
                          f"{task.n_actions}")
-    rng = np.random.default_rng(seed)
-    method = METHODS[config.method]
-    n = config.n_iterations
-    record = Distillation(task.name, expert.algo, seed, config.as_params())
-    features: list[np.ndarray] = []
-    labels: list[np.ndarray] = []
-    weights: list[np.ndarray] = []
-    scored: dict[bytes, tuple[float, float]] = {}
-    eval_seeds = selection_seeds(config.selection_episodes, seed)
-    learner: DecisionTreeRegressor | None = None
-    start = time.perf_counter()
-    bar = tqdm(range(n), desc=f"{config.method} {task.name}/{expert.algo} s{seed}",
-               disable=not progress, leave=False)
-    n_labels = 0
-    for i in bar:
-        beta = method.schedule(i, n)
-
-        def act(obs: np.ndarray, beta: float = beta,
-                learner: DecisionTreeRegressor | None = learner) -> np.ndarray:
-            if method.weighted:
-                expert_actions, weight = expert.label(obs)
-            else:  # the weights are not used: one forward pass
-                expert_actions, weight = expert.act(obs), np.ones(len(obs))
-            features.append(task.features(obs))
-            labels.append(expert_actions)
-            weights.append(weight)
-            if learner is None or beta >= 1.0:
-                return expert_actions
-            use_expert = mix(np.arange(len(obs)), np.full(len(obs), -1), beta, rng) >= 0
-            return np.where(use_expert[:, None], expert_actions,
-                            tree_actions(learner, features[-1]))
-
-        rollout(task, act, iteration_seeds(seed, i), n_envs=config.collect_envs,
-                budget=config.labels_per_iteration)
-        x = np.concatenate(features)
-        y = np.concatenate(labels)
-        new_labels, n_labels = len(y) - n_labels, len(y)
-        if method.weighted:
-            x, y = resample(x, y, weights, rng)
-        tree = DecisionTreeRegressor(max_leaf_nodes=config.max_leaf_nodes,
-                                     max_depth=config.max_depth, random_state=seed)
-        tree.fit(x, y)
-        learner = tree
-        # a regressor here (the record holds any fitted tree)
-        record_iteration(record, scored, tree, regression_signature(tree), i, beta, new_labels,
-                         n_labels, task, box_tree_policy(task, tree), eval_seeds,
-                         config.eval_envs)
-        bar.set_postfix(best=max(s for s, _ in scored.values()), beta=f"{beta:.2f}")
-    return choose_best(record, start)
+    return interactive_loop(task, expert, config, seed, RegressionLearner(config, seed),
+                            progress=progress)
 
 
 def regressor_doc(tree: DecisionTreeRegressor) -> dict[str, Any]:

@@ -27,8 +27,9 @@ earliest) is the result. For PPO/A2C experts Q is replaced by log pi(a|s).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
@@ -154,12 +155,87 @@ def tree_signature(tree: DecisionTreeClassifier) -> bytes:
 _signature = tree_signature  # the former private name (kept for existing callers)
 
 
+class Learner(Protocol):
+    """What the interactive loop fits each iteration, and how that tree acts: the one variation
+    point between classification trees (CART, relational) and regression trees (Box tasks,
+    :mod:`ibt.distill.continuous`)."""
+
+    def label(self, expert: Expert, obs: np.ndarray, weighted: bool
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """The expert's actions on a batch and each state's weight."""
+        ...
+
+    def fit(self, x: np.ndarray, y: np.ndarray) -> Any:
+        """A tree fitted on the (resampled) aggregate."""
+        ...
+
+    def signature(self, tree: Any) -> bytes:
+        """The tree's decision function as bytes (equal bytes, equal actions)."""
+        ...
+
+    def predictor(self, tree: Any) -> Callable[[np.ndarray], np.ndarray]:
+        """The tree's actions on a batch of feature rows."""
+        ...
+
+    def mix(self, expert_actions: np.ndarray, tree_actions: np.ndarray, beta: float,
+            rng: np.random.Generator) -> np.ndarray:
+        """Per row, the expert's action with probability ``beta``, else the tree's."""
+        ...
+
+
+@dataclass(frozen=True)
+class ClassifierLearner:
+    """A classification tree: scikit-learn's CART, or the relational learner of
+    :mod:`ibt.distill.relational` (splits may test ``w1 * x_i + w2 * x_j``)."""
+
+    config: DistillConfig
+    seed: int
+
+    def label(self, expert: Expert, obs: np.ndarray, weighted: bool
+              ) -> tuple[np.ndarray, np.ndarray]:
+        return expert.label(obs)  # one forward pass gives the weights too
+
+    def fit(self, x: np.ndarray, y: np.ndarray) -> Any:
+        config = self.config
+        if METHODS[config.method].learner == "relational":
+            from ibt.distill.relational import fit_relational_tree
+
+            return fit_relational_tree(x, y, max_leaf_nodes=config.max_leaf_nodes,
+                                       max_depth=config.max_depth, seed=self.seed)
+        return DecisionTreeClassifier(max_leaf_nodes=config.max_leaf_nodes,
+                                      max_depth=config.max_depth, ccp_alpha=config.ccp_alpha,
+                                      random_state=self.seed).fit(x, y)
+
+    def signature(self, tree: Any) -> bytes:
+        return tree_signature(tree)
+
+    def predictor(self, tree: Any) -> Callable[[np.ndarray], np.ndarray]:
+        return CompiledTree(tree).predict  # a relational tree's derived columns included
+
+    def mix(self, expert_actions: np.ndarray, tree_actions: np.ndarray, beta: float,
+            rng: np.random.Generator) -> np.ndarray:
+        return mix(expert_actions, tree_actions, beta, rng)
+
+
 def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
             progress: bool = True) -> Distillation:
     """Run the interactive loop; see the module docstring."""
     if expert.n_actions != task.n_actions:
         raise ValueError(f"the expert has {expert.n_actions} actions, {task.name} has "
                          f"{task.n_actions}")
+    if METHODS[config.method].learner == "relational" and config.ccp_alpha:
+        raise ValueError("the relational learner grows to max_leaf_nodes/max_depth; it has no "
+                         "cost-complexity pruning (ccp_alpha must be 0)")
+    return interactive_loop(task, expert, config, seed, ClassifierLearner(config, seed),
+                            progress=progress)
+
+
+def interactive_loop(task: Task, expert: Expert, config: Any, seed: int, learner: Learner, *,
+                     progress: bool = True) -> Distillation:
+    """The loop itself, for any :class:`Learner`: per iteration, roll out the mixed policy
+    until the label budget is spent, aggregate the expert's labels, resample by weight where
+    the method weighs, fit, and score the tree on the held-out selection episodes; the best
+    tree wins. ``config`` gives ``method``, ``beta``, ``weighted``, the budgets and envs."""
     rng = np.random.default_rng(seed)
     n = config.n_iterations
     record = Distillation(task.name, expert.algo, seed, config.as_params())
@@ -168,11 +244,7 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
     weights: list[np.ndarray] = []
     scored: dict[bytes, tuple[float, float]] = {}
     eval_seeds = selection_seeds(config.selection_episodes, seed)
-    learner: CompiledTree | None = None
-    relational = METHODS[config.method].learner == "relational"
-    if relational and config.ccp_alpha:
-        raise ValueError("the relational learner grows to max_leaf_nodes/max_depth; it has no "
-                         "cost-complexity pruning (ccp_alpha must be 0)")
+    predict: Callable[[np.ndarray], np.ndarray] | None = None
     start = time.perf_counter()
     bar = tqdm(range(n), desc=f"{config.method} {task.name}/{expert.algo} s{seed}",
                disable=not progress, leave=False)
@@ -180,15 +252,15 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
     for i in bar:
         beta = config.beta(i, n)
 
-        def act(obs: np.ndarray, beta: float = beta, learner: CompiledTree | None = learner
-                ) -> np.ndarray:
-            expert_actions, weight = expert.label(obs)
+        def act(obs: np.ndarray, beta: float = beta,
+                predict: Callable[[np.ndarray], np.ndarray] | None = predict) -> np.ndarray:
+            expert_actions, weight = learner.label(expert, obs, config.weighted)
             features.append(task.features(obs))
             labels.append(expert_actions)
             weights.append(weight)
-            if learner is None or beta >= 1.0:
+            if predict is None or beta >= 1.0:
                 return expert_actions
-            return mix(expert_actions, learner.predict(features[-1]), beta, rng)
+            return learner.mix(expert_actions, predict(features[-1]), beta, rng)
 
         rollout(task, act, iteration_seeds(seed, i), n_envs=config.collect_envs,
                 budget=config.labels_per_iteration)
@@ -197,22 +269,18 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
         new_labels, n_labels = len(y) - n_labels, len(y)
         if config.weighted:
             x, y = resample(x, y, weights, rng)
-        if relational:
-            from ibt.distill.relational import fit_relational_tree
-
-            tree = fit_relational_tree(x, y, max_leaf_nodes=config.max_leaf_nodes,
-                                       max_depth=config.max_depth, seed=seed)
-        else:
-            tree = DecisionTreeClassifier(max_leaf_nodes=config.max_leaf_nodes,
-                                          max_depth=config.max_depth,
-                                          ccp_alpha=config.ccp_alpha, random_state=seed)
-            tree.fit(x, y)
-        learner = CompiledTree(tree)  # a relational tree's derived columns included
-        record_iteration(record, scored, tree, tree_signature(tree), i, beta, new_labels,
-                         n_labels, task, learner_policy(task, learner), eval_seeds,
+        tree = learner.fit(x, y)
+        predict = learner.predictor(tree)
+        record_iteration(record, scored, tree, learner.signature(tree), i, beta, new_labels,
+                         n_labels, task, _on_observations(task, predict), eval_seeds,
                          config.eval_envs)
         bar.set_postfix(best=max(s for s, _ in scored.values()), beta=f"{beta:.2f}")
     return choose_best(record, start)
+
+
+def _on_observations(task: Task, predict: Callable[[np.ndarray], np.ndarray]) -> Any:
+    """``act`` of a tree's predictor on raw observations."""
+    return lambda obs: predict(task.features(obs))
 
 
 def iteration_seeds(seed: int, iteration: int) -> list[int]:

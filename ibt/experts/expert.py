@@ -169,8 +169,9 @@ class Expert:
         with torch.no_grad():
             tensor = self._obs_tensor(obs)
             policy = self.model.policy
-            if self.algo in ("sac", "td3"):
-                scaled = policy.actor(tensor, deterministic=True).cpu().numpy()
+            if self.algo in ("sac", "td3"):  # a squashed Gaussian's mean; TD3's own actor
+                keywords = {"deterministic": True} if self.algo == "sac" else {}
+                scaled = policy.actor(tensor, **keywords).cpu().numpy()
                 actions = policy.unscale_action(scaled)
             else:
                 dist = policy.get_distribution(tensor)

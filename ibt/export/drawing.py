@@ -22,9 +22,12 @@ Rendering needs graphviz's ``dot`` binary; without it, :func:`require_dot` says 
 
 from __future__ import annotations
 
+import functools
 import html
 import shutil
+import struct
 from dataclasses import dataclass
+from typing import Any
 
 from ibt.bt.model import (
     Action,
@@ -64,6 +67,55 @@ def require_dot() -> str:
     return dot
 
 
+# ------------------------------------------------------------------ shown in a notebook
+def _inline_bundle(graph: Any, include: Any = None, exclude: Any = None
+                   ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A notebook's view of ``graph``: PNG and SVG, and the PNG's display width.
+
+    JupyterLab draws no ``image/svg+xml`` of an untrusted notebook (every fresh clone), so a
+    drawing carries a PNG too; trusted viewers keep the sharper SVG. The PNG is rendered at
+    :data:`DRAWING_DPI` and shown at the SVG's size (96 px per inch), sharp on dense screens.
+    """
+    wanted = {"image/png", "image/svg+xml"} if include is None else set(include)
+    wanted -= set(exclude or ())
+    data: dict[str, Any] = {}
+    metadata: dict[str, Any] = {}
+    if "image/png" in wanted:
+        hi = graph.copy()
+        hi.graph_attr["dpi"] = str(DRAWING_DPI)
+        png = hi.pipe(format="png")
+        width, height = struct.unpack(">II", png[16:24])  # the PNG header's IHDR chunk
+        scale = 96 / DRAWING_DPI
+        data["image/png"] = png
+        metadata["image/png"] = {"width": round(width * scale), "height": round(height * scale)}
+    if "image/svg+xml" in wanted:
+        data["image/svg+xml"] = graph.pipe(format="svg", encoding="utf-8")
+    return data, metadata
+
+
+@functools.cache
+def _inline_digraph() -> type:
+    """``graphviz.Digraph`` that a notebook shows as PNG and SVG (defined on first use, so that
+    importing this module loads no graphviz)."""
+    import graphviz
+
+    class InlineDigraph(graphviz.Digraph):
+        """A ``graphviz.Digraph`` shown in notebooks as PNG beside SVG (:func:`_inline_bundle`)."""
+
+        def _repr_mimebundle_(self, include: Any = None, exclude: Any = None,
+                              **_: Any) -> Any:
+            return _inline_bundle(self, include, exclude)
+
+    InlineDigraph.__module__, InlineDigraph.__qualname__ = __name__, "InlineDigraph"
+    return InlineDigraph
+
+
+def digraph(**attrs: Any) -> Any:
+    """A new ``graphviz.Digraph`` (``attrs`` as its constructor takes them) that notebooks show
+    as PNG and SVG: every drawing of this module is one."""
+    return _inline_digraph()(**attrs)
+
+
 # ----------------------------------------------------------------------------- the layout
 def _stackable(node: Node) -> bool:
     """A condition, or an inverted condition: one row of a box."""
@@ -100,8 +152,6 @@ class _Drawer:
 
     def __init__(self, bt: BehaviorTree, highlight: dict[int, bool] | None,
                  deciding: int | None, precision: int, collapse: bool, stagger: int) -> None:
-        import graphviz
-
         self.bt, self.precision = bt, precision
         self.highlight, self.trace = dict(highlight or {}), highlight is not None
         self.deciding, self.collapse, self.stagger = deciding, collapse, max(1, stagger)
@@ -110,7 +160,7 @@ class _Drawer:
         self.nodes = [node for node, _ in self.table]
         self.elements: dict[int, str] = {}
         self._count = 0
-        self.graph = graphviz.Digraph(
+        self.graph = digraph(
             graph_attr={"rankdir": "TB", "nodesep": "0.2", "ranksep": "0.3", "ordering": "out",
                         "fontname": FONT, "fontsize": str(TITLE_PT), "labelloc": "t",
                         "bgcolor": "white", "pad": "0.15"},
@@ -364,7 +414,7 @@ def _drawer(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
 def to_graphviz(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
                 precision: int = 4, *, deciding: int | None = None, collapse: bool = False,
                 stagger: int = 1, title: str | None = None, legend: bool = True):
-    """A ``graphviz.Digraph`` of the tree.
+    """A ``graphviz.Digraph`` of the tree (a notebook shows it as PNG and SVG).
 
     ``highlight`` maps node index (depth-first position) -> ticked status for trace views,
     ``deciding`` is the index of the condition that decided the tick (marked ◆). ``collapse``
@@ -407,21 +457,20 @@ def trace_graph(bt: BehaviorTree, state, precision: int = 4, title: str | None =
 def decision_tree_graphviz(tree, feature_names, action_names, precision: int = 4,
                            title: str | None = None):
     """A drawing of a fitted scikit-learn tree with the same labels as the BTs (left = true)."""
-    import graphviz
     import numpy as np
 
     t = tree.tree_
     classes = np.asarray(tree.classes_)
-    feature_map = getattr(tree, "feature_map_", None)  # a relational tree (issue 26)
+    feature_map = getattr(tree, "feature_map_", None)  # a relational tree
     if feature_map is not None:  # derived columns read as a reader writes them: x - vx
         feature_names = feature_map.names(feature_names)
-    graph = graphviz.Digraph(graph_attr={"rankdir": "TB", "nodesep": "0.2", "ranksep": "0.3",
-                                         "ordering": "out", "fontname": FONT,
-                                         "fontsize": str(TITLE_PT), "labelloc": "t",
-                                         "bgcolor": "white", "pad": "0.15"},
-                             node_attr={"fontname": FONT, "fontsize": str(FONT_PT)},
-                             edge_attr={"fontname": FONT, "fontsize": str(FONT_PT),
-                                        "arrowsize": "0.6", "color": "#555555"})
+    graph = digraph(graph_attr={"rankdir": "TB", "nodesep": "0.2", "ranksep": "0.3",
+                                "ordering": "out", "fontname": FONT,
+                                "fontsize": str(TITLE_PT), "labelloc": "t",
+                                "bgcolor": "white", "pad": "0.15"},
+                    node_attr={"fontname": FONT, "fontsize": str(FONT_PT)},
+                    edge_attr={"fontname": FONT, "fontsize": str(FONT_PT),
+                               "arrowsize": "0.6", "color": "#555555"})
     if title:
         graph.attr(label=plain_label(title))
     for node in range(t.node_count):

@@ -32,6 +32,7 @@ Deterministic given the seed: episode seeds are counted, CMA-ES samples from a s
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -165,13 +166,22 @@ class _Episodes:
 
 def feature_spread(task: Task, arrays: TreeArrays, episodes: _Episodes) -> np.ndarray:
     """Each feature's standard deviation over the states the tree visits (a CMA-ES scale)."""
-    states: list[np.ndarray] = []
     policy = Population(arrays, arrays.threshold, arrays.action)
+    return visited_spread(task, lambda x: policy.decide(x, np.zeros(len(x), dtype=np.int64)),
+                          episodes)
+
+
+def visited_spread(task: Task, decide: Callable[[np.ndarray], np.ndarray],
+                   episodes: _Episodes) -> np.ndarray:
+    """Each feature's standard deviation over the states a policy visits (``decide``: feature
+    rows -> actions) on 8 fresh episodes, floored at a thousandth of the feature's box: the
+    unit in which CMA-ES moves a threshold on that feature."""
+    states: list[np.ndarray] = []
 
     def act(obs: np.ndarray) -> np.ndarray:
         x = task.features(obs)
         states.append(x)
-        return policy.decide(x, np.zeros(len(x), dtype=np.int64))
+        return decide(x)
 
     rollout(task, act, episodes.fresh(8), n_envs=8)
     x = np.concatenate(states).astype(np.float64)
@@ -180,55 +190,67 @@ def feature_spread(task: Task, arrays: TreeArrays, episodes: _Episodes) -> np.nd
     return np.maximum(x.std(axis=0), floor)
 
 
-def _cma_stage(arrays: TreeArrays, spread: np.ndarray, config: RefineConfig,
-               episodes: _Episodes, rng: np.random.Generator) -> tuple[TreeArrays, dict]:
+def cma_search(n_params: int, config: RefineConfig, episodes: _Episodes,
+               rng: np.random.Generator, population_of: Callable[[np.ndarray], Any]
+               ) -> tuple[np.ndarray | None, dict]:
+    """CMA-ES on ``n_params`` parameters in their own units (``population_of`` maps a batch of
+    parameter vectors to a population that :meth:`_Episodes.score` rolls out), generations of
+    ``cma_episodes`` fresh episodes while the budget lasts; then the incumbent (all zeros),
+    CMA-ES's mean and its best sample are compared on the same fresh episodes. Returns the
+    winner's parameters (None: no generation ran) and what happened."""
     import cma
 
-    splits = np.flatnonzero(~arrays.is_leaf)
-    if len(splits) == 0:
-        return arrays, {"generations": 0}
-    base = arrays.threshold.copy()
-    scale = spread[arrays.feature[splits]]
     options = {"seed": np.nan, "randn": lambda lam, n: rng.standard_normal((lam, n)),
                "verbose": -9, "verb_log": 0, "verb_disp": 0, "tolflatfitness": 10**9,
                "tolfun": 0, "tolx": 0, "tolstagnation": 10**9}
     if config.cma_popsize:
         options["popsize"] = config.cma_popsize
-    es = cma.CMAEvolutionStrategy(np.zeros(len(splits)), config.cma_sigma, options)
+    es = cma.CMAEvolutionStrategy(np.zeros(n_params), config.cma_sigma, options)
     generations = 0
     history: list[tuple[float, float]] = []  # per generation: population mean, best member
-
-    def thresholds(z: np.ndarray) -> np.ndarray:
-        out = np.repeat(base[None, :], len(z), axis=0)
-        out[:, splits] = base[splits] + np.asarray(z) * scale
-        return out
-
     while generations < config.cma_generations:
         if episodes.left < es.popsize * config.cma_episodes:
             break
         z = np.asarray(es.ask())
-        population = Population(arrays, thresholds(z), np.repeat(arrays.action[None, :],
-                                                                   len(z), axis=0))
-        returns = episodes.score(population, episodes.fresh(config.cma_episodes))
+        returns = episodes.score(population_of(z), episodes.fresh(config.cma_episodes))
         member_means = returns.mean(axis=1)
         es.tell(list(z), list(-member_means))
         history.append((round(float(member_means.mean()), 2), round(float(member_means.max()), 2)))
         generations += 1
+        episodes.bar.set_postfix(generation=generations, mean=history[-1][0],
+                                 best=history[-1][1])
     if generations == 0:
-        return arrays, {"generations": 0}
-    # the incumbent, CMA-ES's mean and its best sample, compared on the same fresh episodes
-    contenders = np.vstack([np.zeros(len(splits)), es.mean, es.best.x])
-    population = Population(arrays, thresholds(contenders),
-                            np.repeat(arrays.action[None, :], 3, axis=0))
+        return None, {"generations": 0}
+    contenders = np.vstack([np.zeros(n_params), es.mean, es.best.x])
     k = config.sweep_episodes
     if episodes.left >= 3 * k:
-        means = episodes.score(population, episodes.fresh(k)).mean(axis=1)
+        means = episodes.score(population_of(contenders), episodes.fresh(k)).mean(axis=1)
         pick = int(np.argmax(means))
     else:
         means, pick = np.full(3, np.nan), 1
-    return population.member(pick), {"generations": generations, "history": history,
-                                     "picked": ("incumbent", "mean", "best sample")[pick],
-                                     "compare_means": [round(float(m), 3) for m in means]}
+    return contenders[pick], {"generations": generations, "history": history,
+                              "picked": ("incumbent", "mean", "best sample")[pick],
+                              "compare_means": [round(float(m), 3) for m in means]}
+
+
+def _cma_stage(arrays: TreeArrays, spread: np.ndarray, config: RefineConfig,
+               episodes: _Episodes, rng: np.random.Generator) -> tuple[TreeArrays, dict]:
+    """CMA-ES on the tree's thresholds, each in its feature's spread (:func:`cma_search`)."""
+    splits = np.flatnonzero(~arrays.is_leaf)
+    if len(splits) == 0:
+        return arrays, {"generations": 0}
+    base = arrays.threshold.copy()
+    scale = spread[arrays.feature[splits]]
+
+    def population_of(z: np.ndarray) -> Population:
+        out = np.repeat(base[None, :], len(z), axis=0)
+        out[:, splits] = base[splits] + np.asarray(z) * scale
+        return Population(arrays, out, np.repeat(arrays.action[None, :], len(z), axis=0))
+
+    best, info = cma_search(len(splits), config, episodes, rng, population_of)
+    if best is None:
+        return arrays, info
+    return population_of(best[None, :]).member(0), info
 
 
 def _confirmed(incumbent: TreeArrays, candidate: TreeArrays, config: RefineConfig,

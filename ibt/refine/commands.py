@@ -28,8 +28,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from ibt.evaluate.rollouts import rollout
-from ibt.refine.by_return import _Episodes, close_record, held_out_means
+from ibt.refine.by_return import (
+    _Episodes,
+    close_record,
+    cma_search,
+    held_out_means,
+    visited_spread,
+)
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
@@ -117,24 +122,6 @@ class CommandPopulation:
         return self.values[members, s.action[node]].astype(np.float32)
 
 
-def _spread(task: Task, arrays: CommandArrays, episodes: _Episodes) -> np.ndarray:
-    """Each feature's standard deviation over the states the tree visits (the thresholds'
-    CMA-ES unit), as :func:`ibt.refine.by_return.feature_spread` measures it for a tree of
-    discrete actions."""
-    states: list[np.ndarray] = []
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        x = task.features(obs)
-        states.append(x)
-        return arrays.actions(x)
-
-    rollout(task, act, episodes.fresh(8), n_envs=8)
-    x = np.concatenate(states).astype(np.float64)
-    box = np.asarray(task.high, dtype=np.float64) - np.asarray(task.low, dtype=np.float64)
-    floor = np.where(np.isfinite(box) & (box > 0), 1e-3 * box, 1e-3)
-    return np.maximum(x.std(axis=0), floor)
-
-
 def _rounded(values: np.ndarray, task: Task, decimals: int) -> np.ndarray:
     """Command values rounded to ``decimals`` and clipped to the Box (what a BT writes)."""
     low, high = np.asarray(task.action_low), np.asarray(task.action_high)
@@ -144,22 +131,14 @@ def _rounded(values: np.ndarray, task: Task, decimals: int) -> np.ndarray:
 def _cma_stage(arrays: CommandArrays, task: Task, spread: np.ndarray, config: RefineConfig,
                episodes: _Episodes, rng: np.random.Generator, decimals: int
                ) -> tuple[CommandArrays, dict]:
-    """One CMA-ES run on thresholds and command values; the incumbent, CMA-ES's mean and its
-    best sample are then compared on the same fresh episodes and the best kept."""
-    import cma
-
+    """CMA-ES on thresholds and command values (:func:`ibt.refine.by_return.cma_search`):
+    thresholds in their feature's spread, values in :data:`VALUE_SCALE` of the Box, each
+    candidate's values clipped to the Box and rounded as a BT writes them."""
     splits = np.flatnonzero(~arrays.structure.is_leaf)
     low, high = np.asarray(task.action_low), np.asarray(task.action_high)
     base_t, base_v = arrays.structure.threshold.copy(), arrays.values.copy()
     scale = np.concatenate([spread[arrays.structure.feature[splits]],
                             np.tile(VALUE_SCALE * (high - low), len(base_v))])
-    n_params = len(scale)
-    options = {"seed": np.nan, "randn": lambda lam, n: rng.standard_normal((lam, n)),
-               "verbose": -9, "verb_log": 0, "verb_disp": 0, "tolflatfitness": 10**9,
-               "tolfun": 0, "tolx": 0, "tolstagnation": 10**9}
-    if config.cma_popsize:
-        options["popsize"] = config.cma_popsize
-    es = cma.CMAEvolutionStrategy(np.zeros(n_params), config.cma_sigma, options)
 
     def members(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         z = np.atleast_2d(z) * scale
@@ -168,33 +147,12 @@ def _cma_stage(arrays: CommandArrays, task: Task, spread: np.ndarray, config: Re
         v = np.clip(base_v[None] + z[:, len(splits):].reshape(len(z), *base_v.shape), low, high)
         return t, _rounded(v, task, decimals)
 
-    generations = 0
-    history: list[tuple[float, float]] = []
-    while generations < config.cma_generations:
-        if episodes.left < es.popsize * config.cma_episodes:
-            break
-        z = np.asarray(es.ask())
-        population = CommandPopulation(arrays, *members(z))
-        means = episodes.score(population, episodes.fresh(config.cma_episodes)).mean(axis=1)
-        es.tell(list(z), list(-means))
-        history.append((round(float(means.mean()), 2), round(float(means.max()), 2)))
-        generations += 1
-        episodes.bar.set_postfix(generation=generations, mean=history[-1][0],
-                                 best=history[-1][1])
-    if generations == 0:
-        return arrays, {"generations": 0}
-    contenders = np.vstack([np.zeros(n_params), es.mean, es.best.x])
-    t, v = members(contenders)
-    k = config.sweep_episodes
-    if episodes.left >= 3 * k:
-        compare = episodes.score(CommandPopulation(arrays, t, v), episodes.fresh(k)).mean(axis=1)
-        pick = int(np.argmax(compare))
-    else:
-        compare, pick = np.full(3, np.nan), 1
-    return arrays.with_parameters(t[pick], v[pick]), {
-        "generations": generations, "history": history,
-        "picked": ("incumbent", "mean", "best sample")[pick],
-        "compare_means": [round(float(m), 3) for m in compare]}
+    best, info = cma_search(len(scale), config, episodes, rng,
+                            lambda z: CommandPopulation(arrays, *members(z)))
+    if best is None:
+        return arrays, info
+    t, v = members(best)
+    return arrays.with_parameters(t[0], v[0]), info
 
 
 @dataclass
@@ -254,7 +212,7 @@ def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, 
     bar = tqdm(total=config.episodes, desc=f"refine commands {task.name} s{seed}", unit="ep",
                disable=not progress, leave=False)
     episodes = _Episodes(task, seed, config, bar)
-    spread = _spread(task, source, episodes)
+    spread = visited_spread(task, source.actions, episodes)
     current = source
     for name in config.stages:
         current, info = _cma_stage(current, task, spread, config, episodes, rng, decimals)

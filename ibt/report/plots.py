@@ -260,10 +260,10 @@ def retention_grid(summary: pd.DataFrame, value: str = "retention_norm",
     return fig
 
 
-def _wrap(text: str, width: int) -> str:
+def _wrap(text: str, width: int, break_on_hyphens: bool = True) -> str:
     import textwrap
 
-    return "\n".join(textwrap.wrap(text, width))
+    return "\n".join(textwrap.wrap(text, width, break_on_hyphens=break_on_hyphens))
 
 
 def beta_analysis(curves: pd.DataFrame, results: pd.DataFrame, path: str | Path | None = None,
@@ -610,29 +610,35 @@ def _anchor_label(source: str) -> str:
 
 
 def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.DataFrame,
-                         path: str | Path | None = None, columns: int = 2) -> plt.Figure:
-    """Retention against BT nodes, every method, one panel per task (the front, notebook 07).
+                         path: str | Path | None = None, columns: int = 2,
+                         notes: str = "") -> plt.Figure:
+    """Retention against BT nodes, every method, one panel per task and expert (the front,
+    notebook 07).
 
-    ``points``: one row per run (columns task, method, bt_nodes, retention_norm); ``means``:
-    :func:`ibt.runs.front.front_means` (a line per method through its leaf limits, error bars
-    on both axes); ``anchors``: published trees on our scale (:func:`ibt.runs.front.anchor_table`).
+    ``points``: one row per run (columns task, expert, method, bt_nodes, retention_norm);
+    ``means``: :func:`ibt.runs.front.front_means` (a line per method through its leaf limits,
+    error bars on both axes); ``anchors``: published trees on our scale, per task and expert
+    (:func:`ibt.runs.front.anchor_table`). ``notes`` ends the caption: what the legend's names
+    mean beyond the method names (a reader of the figure alone needs it).
     """
-    tasks = list(dict.fromkeys(means["task"]))
-    columns = min(columns, len(tasks))
-    rows = -(-len(tasks) // columns)
+    panels = _task_expert_panels(means)
+    columns = min(columns, len(panels))
+    rows = -(-len(panels) // columns)
     fig, axes = plt.subplots(rows, columns, figsize=(FIG_WIDTH, 2.7 * rows + 0.9),
                              squeeze=False)
-    for ax in axes.flat[len(tasks):]:
+    for ax in axes.flat[len(panels):]:
         ax.axis("off")
     handles: dict[str, Any] = {}  # errorbar containers and scatter collections
-    for ax, task in zip(axes.flat, tasks, strict=False):
-        for k, method in enumerate(methods_in(means[means["task"] == task])):
+    sources = list(dict.fromkeys(anchors["source"]))
+    for ax, (task, expert) in zip(axes.flat, panels, strict=False):
+        here_means, here_points, here_anchors = (_panel_rows(frame, task, expert)
+                                                 for frame in (means, points, anchors))
+        for k, method in enumerate(methods_in(here_means)):
             style = method_style(method, k)
-            seeds = points[(points["task"] == task) & (points["method"] == method)]
+            seeds = here_points[here_points["method"] == method]
             ax.scatter(seeds["bt_nodes"], seeds["retention_norm"], s=9, alpha=0.35,
                        color=style["color"], lw=0)
-            line = means[(means["task"] == task) & (means["method"] == method)]
-            line = line.sort_values("bt_nodes")
+            line = here_means[here_means["method"] == method].sort_values("bt_nodes")
             handle = ax.errorbar(line["bt_nodes"], line["retention_norm"],
                                  yerr=[(line["retention_norm"] - line["low"]).clip(lower=0),
                                        (line["high"] - line["retention_norm"]).clip(lower=0)],
@@ -642,9 +648,7 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
                                  capsize=2, lw=1.2, color=style["color"],
                                  label=style["label"])
             handles.setdefault(str(style["label"]), handle)
-        sources = list(dict.fromkeys(anchors["source"]))
-        for anchor in (anchors[anchors["task"] == task]
-                       .drop_duplicates(["source", "tree_nodes"]).itertuples()):
+        for anchor in here_anchors.drop_duplicates(["source", "tree_nodes"]).itertuples():
             marker = ("*", "X", "P", "s")[sources.index(anchor.source) % 4]
             handle = ax.scatter([anchor.tree_nodes], [anchor.retention_norm], marker=marker,
                                 s=110 if marker == "*" else 60, color="black", zorder=5,
@@ -654,39 +658,52 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
         ax.axhline(98, color=GREY, lw=0.8, ls="--")
         ax.set_xscale("log")
         _plain_log_ticks(ax)
-        values = pd.concat([points.loc[points["task"] == task, "retention_norm"],
-                            means.loc[means["task"] == task, "low"]])
+        values = pd.concat([here_points["retention_norm"], here_means["low"]])
         ax.set_ylim(min(0.0, float(values.min()) - 5) if len(values) else 0, 110)
-        shown = (list(dict.fromkeys(means.loc[means["task"] == task, "expert"]))
-                 if "expert" in means else [])
-        who = ", ".join(str(e).upper() for e in shown)
-        ax.set_title(f"{task}, {who} expert{'s' if len(shown) > 1 else ''}" if shown else task)
+        ax.set_title(f"{task}, {str(expert).upper()} expert" if expert is not None else task)
         ax.set_xlabel("BT nodes (log)")
     for ax in axes[:, 0]:
         ax.set_ylabel("retention (%, random-norm.)")
     fig.legend(list(handles.values()), list(handles.keys()), loc="upper center",
                ncol=min(4, len(handles)), bbox_to_anchor=(0.5, 1.0), frameon=False)
-    caption = ("A line per method through its leaf limits: mean over seeds, error bars the "
-               "range (min to max) over seeds; faint dots are single seeds. BT nodes: the "
-               "smallest verified BT of each tree. Black marks: published trees, or trees "
-               "run here (node counts of trees, not BTs), on our scale. Dotted: the expert; "
-               "dashed: 98 %.")
+    caption = " ".join(filter(None, [
+        "A line per method through its leaf limits: mean over seeds, error bars the range (min "
+        "to max) over seeds; faint dots are single seeds. BT nodes: the smallest verified BT of "
+        "each tree. Black marks: published trees, or trees run here (node counts of trees, not "
+        "BTs), on our scale. Dotted: the expert; dashed: 98 %.", notes]))
     fig.tight_layout(rect=(0, 0.0, 1, 0.94))
-    fig.text(0.5, 0.0, _wrap(caption, 110), ha="center", va="top", fontsize=9)
+    fig.text(0.5, 0.0, _wrap(caption, 110, break_on_hyphens=False), ha="center", va="top",
+             fontsize=9)  # method names such as Imitation-BT+SR stay whole
     if path is not None:
         save_figure(fig, path)
     return fig
 
 
+def _task_expert_panels(means: pd.DataFrame) -> list[tuple[str, str | None]]:
+    """One panel per (task, expert) of ``means``, in order of appearance (per task without an
+    expert column)."""
+    if "expert" not in means:
+        return [(task, None) for task in dict.fromkeys(means["task"])]
+    return list(dict.fromkeys(zip(means["task"], means["expert"], strict=True)))
+
+
+def _panel_rows(frame: pd.DataFrame, task: str, expert: str | None) -> pd.DataFrame:
+    """The rows of ``frame`` one panel shows: its task's, and its expert's where both say."""
+    rows = frame[frame["task"] == task]
+    if expert is not None and "expert" in rows:
+        rows = rows[rows["expert"] == expert]
+    return rows
+
+
 def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.DataFrame,
                      path: str | Path | None = None) -> plt.Figure:
-    """Return against BT nodes for the continuous-action tasks (issue 25, notebook 10).
+    """Return against BT nodes for the continuous-action tasks (notebook 10).
 
     ``points``: one row per run (task, refined, leaf_limit, bt_nodes, mean_return,
     expert_return, algo); a line per kind (distilled, refined) through its leaf limits, mean
     over seeds with the range over seeds as error bars, faint dots for single seeds;
     ``anchors``: published or run-here trees (task, source, tree_nodes, mean_return);
-    ``targets``: the issue's bars (task, min_return).
+    ``targets``: the bars set before the runs (task, min_return; ``ibt.runs.continuous``).
     """
     tasks = list(dict.fromkeys(points["task"]))
     fig, axes = plt.subplots(1, len(tasks), figsize=(FIG_WIDTH - 0.7, 3.2), squeeze=False)
@@ -731,7 +748,7 @@ def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.Da
                "seeds; faint dots are single seeds; 100 final episodes each, every BT rolled "
                "out from its JSON document. Black marks: trees published or run here (their "
                "tree nodes, 2 x leaves - 1, not BT nodes). Dotted: the expert; dashed: the "
-               "issue's target.")
+               "target return, fixed before the runs (the targets table of notebook 10).")
     fig.tight_layout(rect=(0, 0.0, 1, 0.97))
     fig.text(0.5, 0.0, _wrap(caption, 110), ha="center", va="top", fontsize=9)
     if path is not None:

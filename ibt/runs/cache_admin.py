@@ -18,7 +18,10 @@ and are left alone.
 
 ``python -m ibt.runs.cache_admin stale`` lists what is not current (and the temporary files),
 ``--reads FOLDER`` also the current entries that the lookups logged there (``IBT_CACHE_READS``)
-never touched, which is what ``make figures`` prints at its end. ``prune`` removes what ``stale``
+never touched, which is what ``make figures`` counts at its end (``--count``: one line, and none
+when there is nothing to count: the committed cache holds only what ``make figures`` reads, so
+a line there means runs were superseded, by a retrained expert or a changed budget or setting,
+and their entries can be pruned). ``prune`` removes what ``stale``
 lists (``--dry-run`` to see it first), except ``legacy`` and ``unmigrated`` entries (migrate
 those) and ``incomplete`` entries that still hold a payload: those only with ``--incomplete``
 (the payload may be all that is left of hours of computing; a later lookup overwrites it
@@ -644,11 +647,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         found = not_current(args.cache_dir, reads)
         what = f"cache entries in {args.cache_dir} that no lookup " + (
             "read" if reads is not None else "can reach")
-        if args.count:  # `make figures`: one line, not a list that reads like an error
+        if args.count and found:  # `make figures`: one line, not a list that reads like an error
             again = [a for a in (argv if argv is not None else sys.argv[1:]) if a != "--count"]
-            print(f"{what}: {_listing(found).splitlines()[0]} (harmless; list them with "
+            why = (" (results of runs nothing asks for any more: a retrained expert, a changed "
+                   "budget or setting; harmless)" if reads is not None else " (harmless)")
+            print(f"{what}: {_listing(found).splitlines()[0]}{why}; list them with "
                   f"`python -m ibt.runs.cache_admin {' '.join(again)}`, remove them with "
-                  "`prune`)")
+                  "`prune`")
+        elif args.count:  # nothing to say: every entry is current (and was read)
+            pass
         else:
             print(f"{what}: {_listing(found)}")
     elif args.command == "prune":

@@ -18,7 +18,6 @@ The notebook (``notebooks/10_continuous.ipynb``) calls :func:`continuous_table`.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass, replace
 from typing import Any
@@ -30,23 +29,18 @@ from tqdm import tqdm
 from ibt.bt.model import BehaviorTree, Commands
 from ibt.distill.continuous import (
     BoxDistillConfig,
-    distill_box,
-    regressor_doc,
-    regressor_from_doc,
 )
-from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout, selection_seeds
-from ibt.experts.expert import expert_path, load_expert
-from ibt.files import file_digest
+from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
-from ibt.refine.commands import CommandArrays, CommandRefinement, refine_commands
+from ibt.refine.commands import CommandArrays, CommandRefinement
 from ibt.runs.cache import load_or_compute
+from ibt.runs.engine import stages
+from ibt.runs.engine.agent import committed_agent
 from ibt.runs.front import refine_config
 from ibt.runs.grid import expert_evaluation
 from ibt.synth.commands import (
-    DECIMALS,
     CommandBTPolicy,
     CommandTree,
-    choose_commands,
     command_name,
     command_task,
 )
@@ -57,10 +51,6 @@ from ibt.tasks.task import Task
 
 COMMAND_TOLERANCE = 0.01  #: choose_commands' tolerance (share of expert minus random return)
 BOX_SELECTION_EPISODES = 20  #: held-out episodes choosing the distillation's tree and its k
-
-
-def _digest(doc: Any) -> str:
-    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def box_config(cfg: Config, task: Task, method: str, leaves: int | None) -> BoxDistillConfig:
@@ -77,21 +67,13 @@ def box_config(cfg: Config, task: Task, method: str, leaves: int | None) -> BoxD
 
 def box_distill_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                        leaves: int | None = None) -> dict[str, Any]:
-    """A continuous distillation (cached): ``iterations``, ``best_index``, ``tree`` (a
+    """A continuous distillation of the committed expert (the engine's stage,
+    :func:`ibt.runs.engine.stages.distillation`): ``iterations``, ``best_index``, ``tree`` (a
     :func:`ibt.distill.continuous.regressor_doc`), ``wall_seconds``."""
     spec = get_task(task)
-    config = box_config(cfg, spec, method, leaves)
-    params = {"task": spec.name, "algo": algo, "seed": seed, "config": config.as_params(),
-              "expert_sha256": file_digest(expert_path(spec, algo, cfg.experts_dir))}
-
-    def compute() -> dict[str, Any]:
-        expert = load_expert(spec, algo, expert_path(spec, algo, cfg.experts_dir))
-        run = distill_box(spec, expert, config, seed, progress=cfg.progress)
-        return {"iterations": run.iterations, "best_index": run.best_index,
-                "tree": regressor_doc(run.best_tree), "wall_seconds": run.wall_seconds}
-
-    return load_or_compute("box-distill", params, compute, cache_dir=cfg.cache_dir,
-                           codec="json", refresh=cfg.refresh)
+    overrides: dict[str, Any] = {} if leaves is None else {"max_leaf_nodes": leaves}
+    return stages.distillation(cfg, committed_agent(spec, algo, cfg.experts_dir), seed, "box",
+                               method, **overrides)
 
 
 def command_tree_of(arrays: CommandArrays, task: Task) -> CommandTree:
@@ -105,28 +87,10 @@ def command_tree_of(arrays: CommandArrays, task: Task) -> CommandTree:
 def commands_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                     leaves: int | None = None) -> dict[str, Any]:
     """The distilled tree's leaves merged into the fewest named commands that keep its
-    held-out return (cached): ``arrays`` (a :class:`CommandArrays` document), ``rows`` (every
-    ``k`` tried), ``scale`` (expert minus random return on those episodes)."""
-    from ibt.experts.training import BoxRandomPolicy
-
+    held-out return (:func:`ibt.runs.engine.stages.commands`)."""
     spec = get_task(task)
     run = box_distill_cached(cfg, spec, algo, method, seed, leaves)
-    n = min(BOX_SELECTION_EPISODES, cfg.selection_episodes)
-    params = {"task": spec.name, "algo": algo, "seed": seed, "tree": _digest(run["tree"]),
-              "episodes": n, "tolerance": COMMAND_TOLERANCE, "decimals": DECIMALS}
-
-    def compute() -> dict[str, Any]:
-        seeds = selection_seeds(n, seed, offset=1)
-        expert = load_expert(spec, algo, expert_path(spec, algo, cfg.experts_dir))
-        scale = (rollout(spec, expert.act, seeds).mean
-                 - rollout(spec, BoxRandomPolicy(spec, seed).act, seeds).mean)
-        chosen, rows = choose_commands(regressor_from_doc(run["tree"]), spec, seeds,
-                                       scale=scale, tolerance=COMMAND_TOLERANCE, seed=seed)
-        return {"arrays": CommandArrays.from_command_tree(chosen).to_doc(), "rows": rows,
-                "scale": scale}
-
-    return load_or_compute("box-commands", params, compute, cache_dir=cfg.cache_dir,
-                           codec="json", refresh=cfg.refresh)
+    return stages.commands(cfg, committed_agent(spec, algo, cfg.experts_dir), run["tree"], seed)
 
 
 def box_refine_config(cfg: Config, task: Task) -> RefineConfig:
@@ -144,20 +108,13 @@ def box_refine_task_config(task: Task, **overrides: Any) -> RefineConfig:
 
 def refine_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                   leaves: int | None = None) -> CommandRefinement:
-    """The command tree of :func:`commands_cached`, refined by return (cached)."""
+    """The command tree of :func:`commands_cached`, refined by return with the task's budget
+    (:func:`ibt.runs.engine.stages.command_refinement`)."""
     spec = get_task(task)
     source = commands_cached(cfg, spec, algo, method, seed, leaves)["arrays"]
-    config = box_refine_config(cfg, spec)
-    params = {"task": spec.name, "algo": algo, "seed": seed, "tree": _digest(source),
-              "config": config.as_params(), "decimals": DECIMALS}
-
-    def compute() -> dict[str, Any]:
-        return refine_commands(CommandArrays.from_doc(source), spec, config, seed,
-                               decimals=DECIMALS, progress=cfg.progress).to_doc()
-
-    doc = load_or_compute("box-refine", params, compute, cache_dir=cfg.cache_dir,
-                          codec="json", refresh=cfg.refresh)
-    return CommandRefinement.from_doc(doc)
+    return stages.command_refinement(cfg, committed_agent(spec, algo, cfg.experts_dir),
+                                     CommandArrays.from_doc(source), seed,
+                                     box_refine_config(cfg, spec))
 
 
 def command_bt(arrays: CommandArrays, task: Task, method: str) -> BehaviorTree:
@@ -174,7 +131,7 @@ def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,
     spec = get_task(task)
     n = episodes or cfg.final_episodes
     synthesisers = front_synthesisers()
-    params = {"task": spec.name, "tree": _digest(arrays.to_doc()), "episodes": n,
+    params = {"task": spec.name, "tree": stages.doc_digest(arrays.to_doc()), "episodes": n,
               "synthesisers": list(synthesisers)}
 
     def compute() -> dict[str, Any]:
@@ -183,7 +140,7 @@ def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,
         for method in synthesisers:
             bts[method] = command_bt(arrays, spec, method)
             out[f"nodes_{method.replace('-', '_')}"] = bts[method].node_count
-        smallest = min(synthesisers, key=lambda m: (bts[m].node_count, synthesisers.index(m)))
+        smallest = stages.smallest_bt(bts)
         text = bts[smallest].to_json()
         policy = CommandBTPolicy(spec, BehaviorTree.from_json(text))
         result = rollout(spec, policy.act, final_seeds(n))

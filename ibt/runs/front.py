@@ -40,6 +40,7 @@ from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
 from ibt.refine.by_return import RefineConfig, Refinement, refine
 from ibt.runs.cache import load_or_compute
+from ibt.runs.engine.stages import smallest_bt
 from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.runs.pipeline import distill_cached
 from ibt.synth.registry import front_synthesisers, get_synthesiser
@@ -61,7 +62,7 @@ class Anchor:
     leaves: int | None
     mean_return: float
     std_return: float | None
-    # the bar "ahead of it at its own size" (issue 22): a mean return above the anchor's with at
+    # the bar "ahead of it at its own size": a mean return above the anchor's with at
     # most ``leaves`` leaves, a BT of at most ``max_bt_nodes`` nodes and, where published, at
     # least ``min_share`` of the episodes at or above the task's protocol threshold
     max_bt_nodes: int | None = None
@@ -87,7 +88,8 @@ ANCHORS = (
 )
 
 
-#: The bar of a small BT (issue 26, and issue 22 at 12 leaves or fewer) on the anchors' protocol,
+#: The bar of a small BT (the small-BT target: gymnasium's solved score, 200 on LunarLander, from a
+#: BT small enough to read whole; at 12 leaves or fewer) on the anchors' protocol,
 #: per task: every seed's BT at most this many nodes, the mean return over seeds (1,000 final
 #: episodes each) at least this; at larger limits the bar is the task's published anchor at its
 #: own size (:data:`ANCHORS`: above its mean, its share, at most its BT nodes).
@@ -95,7 +97,7 @@ ANCHORS = (
 SMALL_BARS: dict[str, dict[str, Any]] = {
     "LunarLander-v3": {"up_to_leaves": 12, "bar_max_bt_nodes": 25, "bar_min_return": 200.0,
                        "bar_strict": False, "bar_min_share": None,
-                       "bar_source": "issues 22 and 26"}}
+                       "bar_source": "small-BT target: solved by a BT small enough to read whole"}}
 BAR_SEEDS = 3  # the bars are means over this many seeds
 
 
@@ -238,7 +240,7 @@ def bt_sizes(cfg: Config, task: str | Task, tree: Any) -> dict[str, Any]:
             out[f"conditions_{key}"] = bt.node_types()["condition"]
             out[f"seconds_{key}"] = round(time.perf_counter() - start, 3)
             bts[method] = bt
-        smallest = min(synthesisers, key=lambda m: (bts[m].node_count, synthesisers.index(m)))
+        smallest = smallest_bt(bts)
         out.update({"bt_method": smallest, "bt_nodes": bts[smallest].node_count,
                     "bt_conditions": bts[smallest].node_types()["condition"],
                     "bt": bts[smallest].to_dict()})

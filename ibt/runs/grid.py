@@ -21,7 +21,7 @@ import pandas as pd
 from joblib import Parallel, delayed, parallel_config
 from tqdm import tqdm
 
-from ibt.distill.loop import METHODS, tree_signature
+from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
 from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import (
@@ -37,6 +37,8 @@ from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.report.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
 from ibt.runs.cache import load_or_compute
+from ibt.runs.engine.stages import bt_digest as _bt_digest
+from ibt.runs.engine.stages import tree_digest
 from ibt.runs.pipeline import distill_cached
 from ibt.synth.registry import SYNTHESISERS, get_synthesiser
 from ibt.tasks.catalogue import get_task
@@ -105,20 +107,6 @@ def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, flo
                            codec="json", refresh=cfg.refresh)
 
 
-def _bt_digest(bt: Any) -> str:
-    """A BT's identity in cache keys: the digest of its JSON document."""
-    import hashlib
-
-    return hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]
-
-
-def tree_digest(tree: Any) -> str:
-    """A decision tree's identity in cache keys: the digest of :func:`tree_signature`."""
-    import hashlib
-
-    return hashlib.sha256(tree_signature(tree)).hexdigest()[:16]
-
-
 def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
     """Return statistics and task outcome rates over the profile's final episodes."""
     result = rollout(spec, act, final_seeds(cfg.final_episodes))
@@ -128,13 +116,17 @@ def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
 def evaluate_tree(cfg: Config, task: str | Task, tree: Any) -> dict[str, float]:
     """A decision tree's final evaluation (cached on the tree's exact structure)."""
     spec = get_task(task)
-    params = {"task": spec.name, "episodes": cfg.final_episodes, "tree": tree_digest(tree)}
+    return _final_evaluation(cfg, spec, "tree-eval", {"tree": tree_digest(tree)},
+                             lambda: TreePolicy(spec, tree).act)
 
-    def compute() -> dict[str, float]:
-        return _final_metrics(cfg, spec, TreePolicy(spec, tree).act)
 
-    return load_or_compute("tree-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
-                           refresh=cfg.refresh)
+def _final_evaluation(cfg: Config, spec: Task, kind: str, what: dict[str, str], act: Any
+                      ) -> dict[str, float]:
+    """``act()``'s policy on the profile's final episodes, cached as ``kind`` under ``what``
+    (a tree's or a BT's digest)."""
+    params = {"task": spec.name, "episodes": cfg.final_episodes, **what}
+    return load_or_compute(kind, params, lambda: _final_metrics(cfg, spec, act()),
+                           cache_dir=cfg.cache_dir, codec="json", refresh=cfg.refresh)
 
 
 def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
@@ -297,13 +289,8 @@ def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
     from ibt.evaluate.policies import BTPolicy
 
     spec = get_task(task)
-    params = {"task": spec.name, "episodes": cfg.final_episodes, "bt": _bt_digest(bt)}
-
-    def compute() -> dict[str, float]:
-        return _final_metrics(cfg, spec, BTPolicy(spec, bt).act)
-
-    return load_or_compute("bt-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
-                           refresh=cfg.refresh)
+    return _final_evaluation(cfg, spec, "bt-eval", {"bt": _bt_digest(bt)},
+                             lambda: BTPolicy(spec, bt).act)
 
 
 def executors_agree(cfg: Config, task: str | Task, bt: Any, tree: Any, n_states: int = 100_000

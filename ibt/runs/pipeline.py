@@ -14,7 +14,7 @@ import pandas as pd
 
 from ibt.bt.json_io import save_json
 from ibt.bt.model import BehaviorTree
-from ibt.distill.loop import Distillation, DistillConfig, distill
+from ibt.distill.loop import Distillation, DistillConfig
 from ibt.evaluate.rollouts import (
     episode_metrics,
     final_seeds,
@@ -23,53 +23,36 @@ from ibt.evaluate.rollouts import (
     rollout,
 )
 from ibt.experts import expert as experts
-from ibt.experts.expert import Expert, expert_path
-from ibt.files import file_digest
+from ibt.experts.expert import Expert
 from ibt.profiles import Config
-from ibt.runs.cache import load_or_compute
+from ibt.runs.engine import stages
+from ibt.runs.engine.agent import committed_agent
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
 
 def distill_config(cfg: Config, task: str | Task, method: str = "imitation-bt",
                    **overrides: Any) -> DistillConfig:
-    """The task's distillation settings (its catalogue entry's ``budget``) scaled to the
-    profile's budgets."""
-    task = get_task(task)
-    budget = task.budget
-    labels = max(50, round(budget.labels_per_iteration * cfg.labels_scale))
-    iterations = min(cfg.n_iterations, budget.max_iterations or cfg.n_iterations)
-    settings = {"n_iterations": iterations, "labels_per_iteration": labels,
-                "selection_episodes": cfg.selection_episodes * budget.selection_scale, **overrides}
-    return DistillConfig.for_task(task, method=method, **settings)
+    """The task's distillation settings scaled to the profile's budgets
+    (:func:`ibt.runs.engine.stages.distill_config`)."""
+    return stages.distill_config(cfg, get_task(task), method, **overrides)
 
 
 def distill_params(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> dict[str, Any]:
     """The cache parameters of one distillation run (see :func:`distill_cached`)."""
-    task_obj = get_task(task)
-    dcfg = distill_config(cfg, task_obj, method, **overrides)
-    return {"task": task_obj.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
-            "expert_sha256": file_digest(expert_path(task_obj, algo, cfg.experts_dir))}
+    agent = committed_agent(get_task(task), algo, cfg.experts_dir)
+    return stages.distill_key(cfg, agent, seed, "axis", method, **overrides)[1]
 
 
 def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> Distillation:
-    """A distillation run, from the cache when the same expert, settings and seed ran before.
-
-    The cache key holds the expert checkpoint's digest: a retrained expert is a cache miss.
-    """
-    task_obj = get_task(task)
-    dcfg = distill_config(cfg, task_obj, method, **overrides)
-    params = distill_params(cfg, task_obj, algo, method, seed, **overrides)
-
-    def compute() -> Distillation:
-        expert = experts.load_expert(task_obj, algo,
-                                     expert_path(task_obj, algo, cfg.experts_dir))
-        return distill(task_obj, expert, dcfg, seed, progress=cfg.progress)
-
-    return load_or_compute("distill", params, compute, cache_dir=cfg.cache_dir,
-                           codec="distillation", refresh=cfg.refresh)
+    """A distillation run of the committed expert (the engine's stage,
+    :func:`ibt.runs.engine.stages.distillation`), from the cache when the same expert,
+    settings and seed ran before: the key holds the checkpoint's digest, so a retrained expert
+    is a cache miss."""
+    agent = committed_agent(get_task(task), algo, cfg.experts_dir)
+    return stages.distillation(cfg, agent, seed, "axis", method, **overrides)
 
 
 def load_expert(task: str | Task, algo: str, path: str | Path | None = None) -> Expert:

@@ -158,16 +158,23 @@ class DegenerateAgent(ValueError):
     """The agent does no better than the uniform random policy: nothing worth distilling."""
 
 
-def check_agent_beats_random(agent: Returns, random: Returns, task: Task) -> None:
-    """``DegenerateAgent`` where the agent's mean return is within two standard errors of the
-    random policy's (retention, a share of their difference, would be noise)."""
+def agent_lead(agent: Returns, random: Returns, task: Task) -> str | None:
+    """``DegenerateAgent`` where the agent's returns are the random policy's (to the last
+    digit: retention would divide by nothing); a warning for the report where its lead is
+    within two standard errors (retention is then mostly noise); None otherwise."""
     a, r = np.asarray(agent.returns), np.asarray(random.returns)
+    lead = float(a.mean() - r.mean())
+    said = (f"the agent's mean return on {task.name} is {a.mean():.2f} against the random "
+            f"policy's {r.mean():.2f} over {len(a)} held-out episodes")
+    if lead <= 1e-9 * max(1.0, abs(float(r.mean()))):
+        raise DegenerateAgent(f"{said}: it does no better than the random policy, so there is "
+                              "nothing to distil; train it longer or check that its reward "
+                              "depends on its actions")
     noise = 2 * math.sqrt(a.var() / len(a) + r.var() / len(r))
-    if a.mean() - r.mean() <= max(noise, 1e-9):
-        raise DegenerateAgent(
-            f"the agent does no better than the random policy on {task.name} ({a.mean():.2f} "
-            f"against {r.mean():.2f} over {len(a)} held-out episodes): there is nothing to "
-            "distil; train it longer or check that its reward depends on its actions")
+    if lead <= noise:
+        return (f"{said}, a lead within two standard errors ({noise:.2f}): retention "
+                "figures are mostly noise; use more `--episodes` or a better-trained agent")
+    return None
 
 
 def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None = None,
@@ -191,7 +198,7 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
     choice, confirm = held_out(cfg.final_episodes, 0), held_out(cfg.final_episodes, 1)
     agent_choice = stages.returns_of(quiet, task, agent_key, lambda: agent.load().act, choice)
     random_choice = stages.returns_of(quiet, task, random_key, agent.random_act, choice)
-    check_agent_beats_random(agent_choice, random_choice, task)
+    warning = agent_lead(agent_choice, random_choice, task)
     settings = Settings(keep, tuple(sorted(set(leaf_limits))), seed, relational, restarts,
                         n_jobs, budget.scale, budget.refine_episodes, max_nodes,
                         env_modules=tuple(env_modules), full=full)
@@ -210,6 +217,8 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
 
     ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
                         random_mean=random_choice.mean, deadline=deadline, on_step=on_step)
+    if warning:
+        ladder.notes.insert(0, warning)
     bar.close()
     elapsed = deadline.elapsed()
     if not ladder.candidates:

@@ -85,8 +85,9 @@ def draw_front(rec: Recommendation, path: Path) -> None:
     from ibt.files import atomic_target
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
-    for stage, marker in (("distilled", "o"), ("refined", "s"), ("distilled, relational", "^"),
-                          ("refined, relational", "D")):
+    for stage, marker in (("distilled", "o"), ("refined", "s"), ("searched", "*"),
+                          ("distilled, relational", "^"), ("refined, relational", "D"),
+                          ("searched, relational", "P")):
         points = [c for c in rec.candidates if c.label == stage]
         if not points:
             continue
@@ -98,6 +99,16 @@ def draw_front(rec: Recommendation, path: Path) -> None:
     ax.scatter([rec.chosen.bt_nodes], [rec.chosen.retention], s=220, facecolors="none",
                edgecolors="crimson", linewidths=2, label="recommended")
     ax.set_xscale("log")
+    # plain ticks (10, 20, 30, 60), not 10^1, 2x10^1: round numbers inside the axis' range
+    from matplotlib.ticker import FixedLocator, NullFormatter, StrMethodFormatter
+
+    low, high = ax.get_xlim()
+    ticks = [m * 10**e for e in range(0, 6) for m in (1, 2, 3, 5) if low <= m * 10**e <= high]
+    if len(ticks) < 3:  # a narrow range: whole numbers spread over it
+        ticks = sorted({*ticks, *(round(low * (high / low) ** (k / 4)) for k in (1, 2, 3))})
+    ax.xaxis.set_major_locator(FixedLocator(ticks))
+    ax.xaxis.set_major_formatter(StrMethodFormatter("{x:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("BT nodes (smallest verified BT of each tree)")
     ax.set_ylabel("retention, % (0 random, 100 agent)")
     ax.set_title(f"{rec.task.name}, {rec.algo} agent: choice episodes", fontsize=10)
@@ -145,6 +156,42 @@ def next_step(rec: Recommendation) -> str:
     return ("raise the budget (`--budget 4x`: more expert labels and refinement episodes); if "
             "that does not help, the agent may need features a small axis-aligned tree cannot "
             "read (add them to your environment's observation)")
+
+
+def ladder_text(rec: Recommendation) -> list[str]:
+    """How the ladder went: a stop's mark, the steps done and left, and each search's choice
+    among its restarts."""
+    ladder = rec.ladder
+    how = {"time": f"the time budget ({rec.time_limit:.0f} s) ended it",
+           "interrupted": "Ctrl-C stopped it", "terminated": "SIGTERM stopped it"}
+    lines = ["## How the search went", ""]
+    if ladder.stopped:
+        lines += [f"**Stopped early**: {how.get(ladder.stopped, ladder.stopped)} after "
+                  f"{rec.elapsed:.0f} s; this report covers the {len(ladder.steps)} steps done "
+                  "(the recommendation is the best BT among them, confirmed as below). Left "
+                  f"undone: {', '.join(ladder.skipped) or 'nothing'}. Where a run stops depends "
+                  "on the machine's speed; a rerun with a longer `--time` resumes from the "
+                  "cache and, once the ladder finishes, gives the same files.", ""]
+    else:
+        lines += ["The ladder finished within its time budget: leaf limits smallest first, "
+                  "distilled then refined trees at each (axis-aligned, then relational), and the "
+                  "structure search by return only below the first limit whose best BT kept the "
+                  "target (at every limit when none did).", ""]
+    lines += [f"Steps done: {', '.join(ladder.steps)}.", ""]
+    for c in rec.candidates:
+        if c.search is not None:
+            means = ", ".join(f"seed {s}: {m:.2f}" for s, m in zip(c.search.seeds,
+                                                                  c.search.choice_means,
+                                                                  strict=True))
+            lines += [f"Search at leaf limit {c.leaf_limit} ({c.label}): {len(c.search.seeds)} "
+                      f"restarts chosen among on {c.search.choice_episodes} held-out episodes "
+                      f"of their own ({means}); seed {c.search.seeds[c.search.chosen]} won and "
+                      "was polished.", ""]
+    lines += [f"Note: {note}." for note in ladder.notes]
+    if rec.max_nodes is not None:
+        lines += [f"Only BTs of at most {rec.max_nodes} nodes could be recommended "
+                  "(`--max-nodes`)."]
+    return [*lines, ""] if lines[-1] else lines
 
 
 def beyond_the_agent(rec: Recommendation) -> list[str]:
@@ -212,6 +259,8 @@ def report_text(rec: Recommendation, out: Path) -> str:
              else rec.cache_dir)
     lines = [
         f"# A behavior tree for {rec.task.name}'s {rec.algo} agent", "",
+        *(["**This run was stopped before its last step** (see *How the search went*).", ""]
+          if rec.stopped in ("interrupted", "terminated") else []),
         verdict, "",
         f"Recommended: a **{c.bt_nodes}-node BT** ({c.bt_method}) of the {c.label} tree at "
         f"leaf limit {c.leaf_limit} ({c.leaves} leaves); every synthesiser's BT of that tree, "
@@ -230,12 +279,15 @@ def report_text(rec: Recommendation, out: Path) -> str:
         f"{rec.agent_choice:.2f}, random {rec.random_choice:.2f}); the recommendation is the "
         f"smallest BT at or above the target there, or the best one when none is. "
         "Distilled trees come from Imitation-BT's interactive loop at each leaf limit; refined "
-        "ones from refinement by return (thresholds, leaf actions, pruning) on other episodes. "
+        "ones from refinement by return (thresholds, leaf actions, pruning) on other episodes; "
+        "searched ones from the structure search by return (splits, features, thresholds and "
+        "leaves evolved under the leaf limit from that limit's distilled and refined trees, "
+        "helped by the agent's labels), then polished. "
         "*Relational* trees come from the same loop with a learner whose splits may test "
         "`w1 * x_i + w2 * x_j` where that beats every single-feature split by a margin; one "
         "is recommended only where its BT is smaller than every single-feature one that keeps "
         "the target.",
-        "", *rows, "", "![front](front.png)", "",
+        "", *rows, "", "![front](front.png)", "", *ladder_text(rec),
         "## The BT as rules (the first rule that holds decides)", "",
         "```", rules_text(c.bt), "```", "", "![the BT](bt.png)", "",
         "## Files", "",
@@ -243,7 +295,8 @@ def report_text(rec: Recommendation, out: Path) -> str:
         f"flavour), `bt.png`/`bt.svg` (drawing), `front.png`, this report; `{cache}` holds "
         "every step, so a rerun with a larger budget repeats only what changed.", "",
         "## Reproduce", "",
-        f"Checkpoint `{rec.checkpoint}` (SHA-256 prefix {rec.checkpoint_sha256}), seed "
+        f"{'Agent' if rec.algo == 'callable' else 'Checkpoint'} `{rec.checkpoint}` "
+        f"(SHA-256 prefix {rec.checkpoint_sha256}), seed "
         f"{rec.seed}, budget {rec.budget.text}, leaf limits "
         f"{', '.join(map(str, rec.leaf_limits))}; the same command on the same machine gives "
         "the same files.", "",

@@ -22,10 +22,8 @@ import pandas as pd
 from tqdm import tqdm
 
 from ibt.distill.loop import Distillation
-from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
-from ibt.runs.cache import load_or_compute
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
@@ -43,24 +41,17 @@ def learner_params() -> dict[str, Any]:
 
 def distill_rel(cfg: Config, task: Task, algo: str, seed: int, leaves: int | None = None, *,
                 checkpoint: str | Path | None = None) -> Distillation:
-    """An ``imitation-bt+rel`` distillation at a leaf limit (``None``: the task's budget),
-    cached on the expert checkpoint's digest, the loop's settings and the learner's."""
-    from ibt.distill.loop import distill
-    from ibt.experts.expert import expert_path, load_expert
-    from ibt.runs.pipeline import distill_config
+    """An ``imitation-bt+rel`` distillation at a leaf limit (``None``: the task's budget) of
+    the committed expert or ``checkpoint``: the engine's stage
+    (:func:`ibt.runs.engine.stages.distillation`), cached on the checkpoint's digest, the
+    loop's settings and the learner's."""
+    from ibt.runs.engine import stages
+    from ibt.runs.engine.agent import committed_agent, sb3_agent
 
-    overrides = {} if leaves is None else {"max_leaf_nodes": leaves}
-    dcfg = distill_config(cfg, task, METHOD, **overrides)
-    path = Path(checkpoint) if checkpoint is not None else expert_path(task, algo,
-                                                                       cfg.experts_dir)
-    params = {"task": task.name, "algo": algo, "seed": seed, "config": dcfg.as_params(),
-              "learner": learner_params(), "expert_sha256": file_digest(path)}
-
-    def compute() -> Distillation:
-        return distill(task, load_expert(task, algo, path), dcfg, seed, progress=cfg.progress)
-
-    return load_or_compute("distill-rel", params, compute, cache_dir=cfg.cache_dir,
-                           codec="distillation", refresh=cfg.refresh)
+    agent = (committed_agent(task, algo, cfg.experts_dir) if checkpoint is None
+             else sb3_agent(task, algo, checkpoint, check=False))
+    overrides: dict[str, Any] = {} if leaves is None else {"max_leaf_nodes": leaves}
+    return stages.distillation(cfg, agent, seed, "relational", **overrides)
 
 
 def refined_tree(cfg: Config, task: Task, algo: str, seed: int, leaves: int | None,

@@ -26,11 +26,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ibt.experts.expert import expert_path, load_expert
 from ibt.profiles import Config
 from ibt.refine.structure import Evolution
 from ibt.runs.cache import load_or_compute
-from ibt.runs.grid import tree_digest
 from ibt.runs.search import StructureResult, evolve_config, polish_config, seed_trees
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig
@@ -72,32 +70,18 @@ def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_l
     picks leaf actions; ``selection_episodes``: the held-out episodes that choose among its
     finalists where not the task's (the same search, chosen again:
     :func:`ibt.refine.structure.reselect`, cached as ``evolve-select``; not under ``smoke``)."""
-    from ibt.bt.linear import DEFAULT_WEIGHTS
-    from ibt.refine.relational_structure import (
-        CANDIDATE_EPISODES,
-        evolve_relational,
-        reselect_relational,
-    )
-    from ibt.refine.tree_arrays import TreeArrays
+    from ibt.refine.relational_structure import reselect_relational
+    from ibt.runs.engine.agent import committed_agent
+    from ibt.runs.engine.stages import evolve_key, evolve_one
 
     spec = get_task(task)
     config = search_config(cfg, spec, max_leaves, search_episodes, leaf_rule)
     sources = search_seeds(cfg, spec, algo, seed, plus_seeds)
-    path = expert_path(spec, algo, cfg.experts_dir)
-    params = {"task": spec.name, "algo": algo, "seed": seed,
-              "sources": [tree_digest(t) for t in sources], "config": config.as_params(),
-              "weights": [list(w) for w in DEFAULT_WEIGHTS],
-              "candidate_episodes": CANDIDATE_EPISODES,
-              **({"weight_scale": "spread"} if scaled_weights else {})}
-
-    def compute() -> Evolution:
-        expert = load_expert(spec, algo, path)
-        return evolve_relational([TreeArrays.from_sklearn(t) for t in sources], spec, config,
-                                 seed, expert=expert, scaled_weights=scaled_weights,
-                                 progress=cfg.progress)
-
-    record = load_or_compute("evolve-rel", params, compute, cache_dir=cfg.cache_dir,
-                             codec="evolution", refresh=cfg.refresh)
+    agent = committed_agent(spec, algo, cfg.experts_dir)
+    record = evolve_one(cfg, agent, sources, config, seed, relational=True,
+                        scaled_weights=scaled_weights, agent_in_key=False)
+    _, params = evolve_key(agent, sources, config, seed, True, scaled_weights=scaled_weights,
+                           agent_in_key=False)
     choice = chosen_on(cfg, config, selection_episodes)
     if choice == config.selection_episodes:
         return record

@@ -25,13 +25,14 @@ import numpy as np
 
 from ibt.bt.model import BehaviorTree
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
-from ibt.experts.expert import expert_path, load_expert
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
-from ibt.refine.structure import Evolution, evolve
+from ibt.refine.structure import Evolution
 from ibt.runs.cache import load_or_compute
+from ibt.runs.engine.agent import committed_agent
+from ibt.runs.engine.stages import evolve_one
 from ibt.runs.front import STRUCTURE, plus_run, ranked_sources, refinement_cached
-from ibt.runs.grid import _bt_digest, tree_digest
+from ibt.runs.grid import _bt_digest
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig, RefineConfig
 from ibt.tasks.task import Task
@@ -75,20 +76,14 @@ def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
 
 def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
                   use_expert: bool = True) -> Evolution:
-    """The structure search of one run (cached on its seed trees and settings)."""
+    """The structure search of one run: the engine's stage
+    (:func:`ibt.runs.engine.stages.evolve_one`) from this study's seed trees, cached on them and
+    its settings."""
     spec = get_task(task)
     config = evolve_config(cfg, spec, max_leaves, use_expert)
-    sources = seed_trees(cfg, spec, algo, seed)
-    path = expert_path(spec, algo, cfg.experts_dir)
-    params = {"task": spec.name, "algo": algo, "seed": seed,
-              "sources": [tree_digest(t) for t in sources], "config": config.as_params()}
-
-    def compute() -> Evolution:
-        expert = load_expert(spec, algo, path) if config.use_expert else None
-        return evolve(sources, spec, config, seed, expert=expert, progress=cfg.progress)
-
-    return load_or_compute("evolve", params, compute, cache_dir=cfg.cache_dir,
-                           codec="evolution", refresh=cfg.refresh)
+    return evolve_one(cfg, committed_agent(spec, algo, cfg.experts_dir),
+                      seed_trees(cfg, spec, algo, seed), config, seed, relational=False,
+                      agent_in_key=False)
 
 
 @dataclass(frozen=True)

@@ -54,13 +54,23 @@ class Agent:
         return lambda obs: rng.integers(n, size=len(obs))
 
 
-def sb3_agent(task: Task, algo: str, checkpoint: str | Path) -> Agent:
-    """An SB3 checkpoint; its spaces are checked against the task before any work."""
+def sb3_agent(task: Task, algo: str, checkpoint: str | Path, *, check: bool = True) -> Agent:
+    """An SB3 checkpoint; ``check``: loaded now, so its spaces are checked against the task
+    before any work (else when a stage first needs it: a cached run never loads it)."""
     from ibt.files import file_digest
 
     agent = Agent(task, algo, str(checkpoint), file_digest(Path(checkpoint)))
-    agent.load()
+    if check:
+        agent.load()
     return agent
+
+
+def committed_agent(task: Task, algo: str, experts_dir: Path | None = None) -> Agent:
+    """The committed expert of ``task`` and ``algo`` (``data/experts``, or ``experts_dir``),
+    not loaded until a stage needs it."""
+    from ibt.experts.expert import expert_path
+
+    return sb3_agent(task, algo, expert_path(task, algo, experts_dir), check=False)
 
 
 def callable_agent(task: Task, spec: str) -> Agent:

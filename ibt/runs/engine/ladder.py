@@ -59,8 +59,7 @@ class Candidate:
 
     @property
     def bt_method(self) -> str:
-        names = list(self.bts)
-        return min(names, key=lambda m: (self.bts[m].node_count, names.index(m)))
+        return stages.smallest_bt(self.bts)
 
     @property
     def bt(self) -> Any:

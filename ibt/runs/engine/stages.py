@@ -33,6 +33,7 @@ from ibt.evaluate.rollouts import FINAL_SEED_BASE, rollout, selection_seeds
 from ibt.profiles import Config
 from ibt.runs.cache import load_or_compute
 from ibt.runs.engine.agent import Agent
+from ibt.tasks.task import Task
 
 LEARNERS = ("axis", "relational", "box")
 #: held-out selection episodes that choose among a search's restarts (the run's block of
@@ -67,14 +68,14 @@ def held_out(n: int, block: int) -> list[int]:
 def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: list[int]
                ) -> Returns:
     """A policy's returns on ``seeds`` (consecutive), cached under ``what`` (``bt``: a BT's
-    digest, ``tree``: a tree's, else an agent's or the random policy's identity)."""
+    digest, ``tree``: a tree's, else an agent's or the random policy's identity) as the kind
+    ``returns``: every episode's return, where the grid's evaluation kinds keep summaries."""
     params = {"task": task.key, "episodes": len(seeds), "first_seed": seeds[0], **what}
 
     def compute() -> dict[str, Any]:
         return {"returns": [float(r) for r in rollout(task, act(), seeds).returns]}
 
-    kind = "bt-eval" if "bt" in what else "tree-eval" if "tree" in what else "expert-eval"
-    doc = load_or_compute(kind, params, compute, cache_dir=cfg.cache_dir, codec="json",
+    doc = load_or_compute("returns", params, compute, cache_dir=cfg.cache_dir, codec="json",
                           refresh=cfg.refresh)
     return Returns(list(doc["returns"]), seeds[0])
 
@@ -84,16 +85,32 @@ def doc_digest(doc: Any) -> str:
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def tree_digest(tree: Any) -> str:
+    """A decision tree's identity in cache keys: the digest of its decision function
+    (:func:`ibt.distill.loop.tree_signature`)."""
+    from ibt.distill.loop import tree_signature
+
+    return hashlib.sha256(tree_signature(tree)).hexdigest()[:16]
+
+
 def tree_key(tree: Any) -> str:
     """The identity of any tree a stage returns (classifier, relational or command tree)."""
     from ibt.refine.commands import CommandArrays
-    from ibt.runs.grid import tree_digest
 
     return doc_digest(tree.to_doc()) if isinstance(tree, CommandArrays) else tree_digest(tree)
 
 
 def bt_digest(bt: Any) -> str:
+    """A BT's identity in cache keys: the digest of its JSON document."""
     return hashlib.sha256(bt.to_json().encode()).hexdigest()[:16]
+
+
+def smallest_bt(bts: dict[str, Any]) -> str:
+    """The synthesiser whose BT has the fewest nodes (ties: the earlier one, in the order the
+    BTs were made, the registry's): the one "smallest BT" rule of the grid, the front, the
+    continuous study and the pipeline."""
+    names = list(bts)
+    return min(names, key=lambda m: (bts[m].node_count, names.index(m)))
 
 
 def leaves_of(tree: Any) -> int:
@@ -105,29 +122,83 @@ def leaves_of(tree: Any) -> int:
 # --- distil -----------------------------------------------------------------------------------
 
 
+def distill_config(cfg: Config, task: Task, method: str = "imitation-bt", **overrides: Any
+                   ) -> Any:
+    """The task's distillation settings (its catalogue entry's ``budget``) scaled to the
+    profile's budgets, with ``overrides`` (e.g. ``max_leaf_nodes``)."""
+    from ibt.distill.loop import DistillConfig
+
+    budget = task.budget
+    labels = max(50, round(budget.labels_per_iteration * cfg.labels_scale))
+    iterations = min(cfg.n_iterations, budget.max_iterations or cfg.n_iterations)
+    settings = {"n_iterations": iterations, "labels_per_iteration": labels,
+                "selection_episodes": cfg.selection_episodes * budget.selection_scale, **overrides}
+    return DistillConfig.for_task(task, method=method, **settings)
+
+
+def distill_key(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
+                method: str | None = None, **overrides: Any) -> tuple[str, dict, Any]:
+    """The cache kind, key parameters and settings of one distillation (``overrides`` of the
+    task's budget, e.g. ``max_leaf_nodes``; a Box task takes only that one): the one place
+    where the ``distill``, ``distill-rel`` and ``box-distill`` keys are written."""
+    task = agent.task
+    if learner == "box":
+        from ibt.runs.continuous import box_config
+
+        leaves = overrides.pop("max_leaf_nodes", None)
+        if overrides:
+            raise TypeError(f"a Box distillation takes max_leaf_nodes only, not "
+                            f"{sorted(overrides)}")
+        config = box_config(cfg, task, method or box_method(agent), leaves)
+        kind = "box-distill"
+        extra: dict[str, Any] = {}
+    else:
+        from ibt.runs.relational import METHOD, learner_params
+
+        relational = learner == "relational"
+        config = distill_config(cfg, task, METHOD if relational else method or "imitation-bt",
+                                **overrides)
+        kind = "distill-rel" if relational else "distill"
+        extra = {"learner": learner_params()} if relational else {}
+    params = {"task": task.key, "algo": agent.algo, "seed": seed, "config": config.as_params(),
+              **extra, "expert_sha256": agent.digest}
+    return kind, params, config
+
+
+def distillation(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
+                 method: str | None = None, **overrides: Any) -> Any:
+    """One distillation run (cached): a :class:`ibt.distill.loop.Distillation` (``axis``,
+    ``relational``), or for ``box`` a plain document (``iterations``, ``best_index``, ``tree``
+    as :func:`ibt.distill.continuous.regressor_doc`, ``wall_seconds``)."""
+    kind, params, config = distill_key(cfg, agent, seed, learner, method, **overrides)
+    if learner == "box":
+        from ibt.distill.continuous import distill_box, regressor_doc
+
+        def fit() -> dict[str, Any]:
+            run = distill_box(agent.task, agent.load(), config, seed, progress=cfg.progress)
+            return {"iterations": run.iterations, "best_index": run.best_index,
+                    "tree": regressor_doc(run.best_tree), "wall_seconds": run.wall_seconds}
+
+        return load_or_compute(kind, params, fit, cache_dir=cfg.cache_dir, codec="json",
+                               refresh=cfg.refresh)
+    from ibt.distill.loop import distill
+
+    def compute() -> Any:
+        return distill(agent.task, agent.load(), config, seed, progress=cfg.progress)
+
+    return load_or_compute(kind, params, compute, cache_dir=cfg.cache_dir,
+                           codec="distillation", refresh=cfg.refresh)
+
+
 def distil(cfg: Config, agent: Agent, leaves: int, seed: int, learner: str) -> Any:
     """The distilled tree at ``leaves``: a classifier (``axis``, ``relational``) or, on a Box
     task, command arrays (``box``: regression tree, then its leaves merged into commands)."""
+    run = distillation(cfg, agent, seed, learner, max_leaf_nodes=leaves)
     if learner == "box":
-        return _box_commands(cfg, agent, leaves, seed)
-    from ibt.distill.loop import distill
-    from ibt.runs.pipeline import distill_config
-    from ibt.runs.relational import METHOD, learner_params
+        from ibt.refine.commands import CommandArrays
 
-    relational = learner == "relational"
-    dcfg = (distill_config(cfg, agent.task, METHOD, max_leaf_nodes=leaves) if relational
-            else distill_config(cfg, agent.task, max_leaf_nodes=leaves))
-    params = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
-              "config": dcfg.as_params(),
-              **({"learner": learner_params()} if relational else {}),
-              "expert_sha256": agent.digest}
-
-    def compute() -> Any:
-        return distill(agent.task, agent.load(), dcfg, seed, progress=cfg.progress)
-
-    return load_or_compute("distill-rel" if relational else "distill", params, compute,
-                           cache_dir=cfg.cache_dir, codec="distillation",
-                           refresh=cfg.refresh).best_tree
+        return CommandArrays.from_doc(commands(cfg, agent, run["tree"], seed)["arrays"])
+    return run.best_tree
 
 
 def box_method(agent: Agent) -> str:
@@ -136,43 +207,33 @@ def box_method(agent: Agent) -> str:
     return "imitation-bt" if agent.algo in ("sac", "td3") else "dagger"
 
 
-def _box_commands(cfg: Config, agent: Agent, leaves: int, seed: int) -> Any:
-    """The regression tree's leaves merged into the fewest named commands that keep its
-    held-out return (kinds ``box-distill`` and ``box-commands``)."""
-    from ibt.distill.continuous import distill_box, regressor_doc, regressor_from_doc
+def commands(cfg: Config, agent: Agent, tree_doc: dict[str, Any], seed: int) -> dict[str, Any]:
+    """A regression tree's leaves merged into the fewest named commands that keep its held-out
+    return within a tolerance (kind ``box-commands``): ``arrays`` (a
+    :class:`ibt.refine.commands.CommandArrays` document), ``rows`` (every count tried),
+    ``scale`` (agent minus random return on those episodes). The tree, distilled from the
+    agent, identifies it in the key."""
+    from ibt.distill.continuous import regressor_from_doc
     from ibt.refine.commands import CommandArrays
-    from ibt.runs.continuous import BOX_SELECTION_EPISODES, COMMAND_TOLERANCE, box_config
+    from ibt.runs.continuous import BOX_SELECTION_EPISODES, COMMAND_TOLERANCE
     from ibt.synth.commands import DECIMALS, choose_commands
 
     task = agent.task
-    config = box_config(cfg, task, box_method(agent), leaves)
-    params = {"task": task.key, "algo": agent.algo, "seed": seed, "config": config.as_params(),
-              "expert_sha256": agent.digest}
-
-    def fit() -> dict[str, Any]:
-        run = distill_box(task, agent.load(), config, seed, progress=cfg.progress)
-        return {"iterations": run.iterations, "best_index": run.best_index,
-                "tree": regressor_doc(run.best_tree), "wall_seconds": run.wall_seconds}
-
-    run = load_or_compute("box-distill", params, fit, cache_dir=cfg.cache_dir, codec="json",
-                          refresh=cfg.refresh)
     n = min(BOX_SELECTION_EPISODES, cfg.selection_episodes)
-    merge = {"task": task.key, "algo": agent.algo, "seed": seed,
-             "tree": doc_digest(run["tree"]), "episodes": n, "tolerance": COMMAND_TOLERANCE,
-             "decimals": DECIMALS, "expert_sha256": agent.digest}
+    params = {"task": task.key, "algo": agent.algo, "seed": seed, "tree": doc_digest(tree_doc),
+              "episodes": n, "tolerance": COMMAND_TOLERANCE, "decimals": DECIMALS}
 
     def choose() -> dict[str, Any]:
         seeds = selection_seeds(n, seed, offset=1)
         scale = rollout(task, agent.load().act, seeds).mean - rollout(
             task, agent.random_act(seed), seeds).mean
-        chosen, rows = choose_commands(regressor_from_doc(run["tree"]), task, seeds,
+        chosen, rows = choose_commands(regressor_from_doc(tree_doc), task, seeds,
                                        scale=scale, tolerance=COMMAND_TOLERANCE, seed=seed)
         return {"arrays": CommandArrays.from_command_tree(chosen).to_doc(), "rows": rows,
                 "scale": scale}
 
-    doc = load_or_compute("box-commands", merge, choose, cache_dir=cfg.cache_dir, codec="json",
-                          refresh=cfg.refresh)
-    return CommandArrays.from_doc(doc["arrays"])
+    return load_or_compute("box-commands", params, choose, cache_dir=cfg.cache_dir,
+                           codec="json", refresh=cfg.refresh)
 
 
 # --- refine -----------------------------------------------------------------------------------
@@ -192,28 +253,36 @@ def refine_config(cfg: Config, task: Any, scale: float, episodes: int | None,
     return replace(config, episodes=total, cma_generations=generations)
 
 
+def command_refinement(cfg: Config, agent: Agent, arrays: Any, seed: int, config: Any) -> Any:
+    """A command tree refined by return, thresholds and commands' values (kind
+    ``box-refine``): the :class:`ibt.refine.commands.CommandRefinement` record."""
+    from ibt.refine.commands import CommandRefinement, refine_commands
+    from ibt.synth.commands import DECIMALS
+
+    task = agent.task
+    params = {"task": task.key, "algo": agent.algo, "seed": seed,
+              "tree": doc_digest(arrays.to_doc()), "config": config.as_params(),
+              "decimals": DECIMALS}
+
+    def compute() -> dict[str, Any]:
+        return refine_commands(arrays, task, config, seed, decimals=DECIMALS,
+                               progress=cfg.progress).to_doc()
+
+    doc = load_or_compute("box-refine", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                          refresh=cfg.refresh)
+    return CommandRefinement.from_doc(doc)
+
+
 def refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float = 1.0,
            episodes: int | None = None) -> Any:
-    """``tree`` refined by return (kinds ``refine``, ``refine-rel``, ``box-refine``)."""
+    """``tree`` refined by return (kinds ``refine``, ``refine-rel``, ``box-refine``): the
+    refinement's chosen tree."""
     from ibt.refine.commands import CommandArrays
 
     task = agent.task
     if isinstance(tree, CommandArrays):
-        from ibt.refine.commands import CommandRefinement, refine_commands
-        from ibt.synth.commands import DECIMALS
-
         config = refine_config(cfg, task, scale, episodes, commands=True)
-        params = {"task": task.key, "algo": agent.algo, "seed": seed,
-                  "tree": doc_digest(tree.to_doc()), "config": config.as_params(),
-                  "decimals": DECIMALS}
-
-        def compute() -> dict[str, Any]:
-            return refine_commands(tree, task, config, seed, decimals=DECIMALS,
-                                   progress=cfg.progress).to_doc()
-
-        doc = load_or_compute("box-refine", params, compute, cache_dir=cfg.cache_dir,
-                              codec="json", refresh=cfg.refresh)
-        return CommandRefinement.from_doc(doc).best
+        return command_refinement(cfg, agent, tree, seed, config).best
     from ibt.distill.relational import RelationalTreeClassifier
     from ibt.refine.relational import best_tree
     from ibt.runs.front import refinement_cached
@@ -250,37 +319,58 @@ def search_config(cfg: Config, task: Any, leaves: int, scale: float) -> Any:
     return config
 
 
-def evolve_one(cfg: Config, agent: Agent, sources: list[Any], config: Any, seed: int,
-               relational: bool, env_modules: tuple[str, ...] = ()) -> Any:
-    """One restart of the structure search (kinds ``evolve``, ``evolve-rel``); runs in a worker
-    process too (the user's environment modules are imported there first)."""
-    from ibt.runs.grid import tree_digest
+def evolve_key(agent: Agent, sources: list[Any], config: Any, seed: int, relational: bool, *,
+               scaled_weights: bool = False, agent_in_key: bool = True
+               ) -> tuple[str, dict[str, Any]]:
+    """The kind and key parameters of one structure search (see :func:`evolve_one`)."""
+    params: dict[str, Any] = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
+                              "sources": [tree_digest(t) for t in sources],
+                              "config": config.as_params()}
+    if agent_in_key:
+        params["expert_sha256"] = agent.digest
+    if not relational:
+        return "evolve", params
+    from ibt.bt.linear import DEFAULT_WEIGHTS
+    from ibt.refine.relational_structure import CANDIDATE_EPISODES
 
+    params.update({"weights": [list(w) for w in DEFAULT_WEIGHTS],
+                   "candidate_episodes": CANDIDATE_EPISODES,
+                   **({"weight_scale": "spread"} if scaled_weights else {})})
+    return "evolve-rel", params
+
+
+def evolve_one(cfg: Config, agent: Agent, sources: list[Any], config: Any, seed: int,
+               relational: bool, env_modules: tuple[str, ...] = (), *,
+               scaled_weights: bool = False, agent_in_key: bool = True) -> Any:
+    """One restart of the structure search (kinds ``evolve``, ``evolve-rel``); runs in a worker
+    process too (the user's environment modules are imported there first).
+
+    ``scaled_weights``: relational candidates' weights scaled to each pair's spreads.
+    ``agent_in_key``: the agent's digest is part of the key (the pipeline's searches: its small
+    seed trees may coincide for two agents); the committed studies' keys leave it out, as they
+    were made: their seed trees, distilled at the task's budget from the agent, identify it."""
     _import_modules(env_modules)
     task = agent.task
-    params: dict[str, Any] = {"task": task.key, "algo": agent.algo, "seed": seed,
-                              "sources": [tree_digest(t) for t in sources],
-                              "config": config.as_params(), "expert_sha256": agent.digest}
-    if relational:
-        from ibt.bt.linear import DEFAULT_WEIGHTS
-        from ibt.refine.relational_structure import CANDIDATE_EPISODES, evolve_relational
-        from ibt.refine.tree_arrays import TreeArrays
+    kind, params = evolve_key(agent, sources, config, seed, relational,
+                              scaled_weights=scaled_weights, agent_in_key=agent_in_key)
 
-        params.update({"weights": [list(w) for w in DEFAULT_WEIGHTS],
-                       "candidate_episodes": CANDIDATE_EPISODES})
+    def expert() -> Any:
+        return agent.load() if config.use_expert else None
 
-        def compute() -> Any:
+    def compute() -> Any:
+        if relational:
+            from ibt.refine.relational_structure import evolve_relational
+            from ibt.refine.tree_arrays import TreeArrays
+
             return evolve_relational([TreeArrays.from_sklearn(t) for t in sources], task,
-                                     config, seed, expert=agent.load(), progress=cfg.progress)
-    else:
+                                     config, seed, expert=expert(),
+                                     scaled_weights=scaled_weights, progress=cfg.progress)
         from ibt.refine.structure import evolve
 
-        def compute() -> Any:
-            return evolve(sources, task, config, seed, expert=agent.load(),
-                          progress=cfg.progress)
+        return evolve(sources, task, config, seed, expert=expert(), progress=cfg.progress)
 
-    return load_or_compute("evolve-rel" if relational else "evolve", params, compute,
-                           cache_dir=cfg.cache_dir, codec="evolution", refresh=cfg.refresh)
+    return load_or_compute(kind, params, compute, cache_dir=cfg.cache_dir, codec="evolution",
+                           refresh=cfg.refresh)
 
 
 def _import_modules(modules: tuple[str, ...]) -> None:
@@ -376,7 +466,7 @@ def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: li
     if isinstance(tree, CommandArrays):
         from ibt.synth.commands import CommandBTPolicy
 
-        bt = min(bts.values(), key=lambda b: b.node_count)
+        bt = bts[smallest_bt(bts)]
         return returns_of(cfg, task, {"bt": bt_digest(bt)},
                           lambda: CommandBTPolicy(task, bt).act, seeds)
     return returns_of(cfg, task, {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act,

@@ -1,0 +1,169 @@
+"""The pipeline's benchmark (not a test): wall time, recommended BT and confirmed retention.
+
+    python -m tests.bench_pipeline                     # every case (LunarLander: an hour)
+    python -m tests.bench_pipeline thermostat cartpole # some cases
+
+Each case runs ``python -m ibt pipeline`` in a subprocess with a fresh cache (what a new user
+meets), timed as a whole; its row goes into ``data/results/pipeline_bench.csv`` (rows of other
+cases are kept). Agents of the users' own tasks are trained first (seeded; not timed). Then, for
+the cases marked ``full``, the whole ladder is climbed on the same cache (every rung and step,
+whatever kept the target) to measure how often a larger leaf limit would have given a smaller
+BT that keeps the target, which the ladder's stop rule gives up.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "build" / "bench"
+CSV = ROOT / "data" / "results" / "pipeline_bench.csv"
+LINE = re.compile(r"recommended a (\d+)-node BT keeping (-?[\d.]+|nan) % of the agent .*?; "
+                  r"(meets|MISSES) the")
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    task: str
+    algo: str
+    checkpoint: str | None = None  # None: the committed expert
+    env_module: str | None = None
+    time: str = "10m"
+    full: bool = True  # also climb the whole ladder (the stop rule's check)
+
+
+CASES = (
+    Case("thermostat", "Thermostat-v0", "ppo", "build/bench/agents/thermostat_ppo.zip",
+         "tests.fixtures.thermostat"),
+    Case("go-to-target", "GoToTarget-v0", "ppo", "tests/fixtures/go_to_target_ppo.zip",
+         "tests.fixtures.go_to_target"),
+    Case("thruster-sac", "Thruster-v0", "sac", "build/bench/agents/thruster_sac.zip",
+         "bench_thruster"),
+    Case("cartpole-dqn", "CartPole-v1", "dqn"),
+    Case("mountaincar-dqn", "MountainCar-v0", "dqn"),
+    Case("pendulum-sac", "Pendulum-v1", "sac"),
+    Case("lunarlander-ppo", "LunarLander-v3", "ppo", time="30m", full=False),
+    Case("lunarlander-dqn", "LunarLander-v3", "dqn", time="30m", full=False),
+)
+
+
+def train_user_agents() -> None:
+    """The users' agents the cases need (once; seeded, so the same files every time)."""
+    agents = OUT / "agents"
+    agents.mkdir(parents=True, exist_ok=True)
+    from tests.test_env_module_box import ENV_SOURCE
+
+    (OUT / "bench_thruster.py").write_text(ENV_SOURCE)
+    if not (agents / "thermostat_ppo.zip").exists():
+        import tests.fixtures.thermostat  # noqa: F401
+        from ibt.experts.expert import train_expert
+        from ibt.tasks.catalogue import resolve_task
+        from ibt.tasks.settings import hp
+
+        task = replace(resolve_task("Thermostat-v0"), experts=(
+            ("ppo", hp(30_000, 4, n_steps=256, batch_size=64, gamma=0.95)),))
+        train_expert(task, "ppo", agents / "thermostat_ppo.zip", progress=False)
+    if not (agents / "thruster_sac.zip").exists():
+        import gymnasium as gym
+        from stable_baselines3 import SAC
+
+        sys.path.insert(0, str(OUT))
+        import bench_thruster  # noqa: F401
+
+        model = SAC("MlpPolicy", gym.make("Thruster-v0"), seed=0, device="cpu",
+                    learning_starts=200, policy_kwargs={"net_arch": [32, 32]})
+        model.learn(6_000)
+        model.save(agents / "thruster_sac.zip")
+
+
+def run(case: Case) -> dict[str, object]:
+    """One timed pipeline run with a fresh cache, then (``full``) the whole ladder."""
+    out = OUT / case.name
+    shutil.rmtree(out, ignore_errors=True)
+    argv = [sys.executable, "-m", "ibt", "pipeline", case.task, case.algo, "-o", str(out),
+            "--time", case.time, "--quiet"]
+    if case.checkpoint:
+        argv += ["--checkpoint", str(ROOT / case.checkpoint)]
+    if case.env_module:
+        argv += ["--env-module", case.env_module]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(OUT)])}
+    load = os.getloadavg()[0]
+    start = time.perf_counter()
+    done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    said = done.stdout + done.stderr
+    match = LINE.search(said)
+    row: dict[str, object] = {
+        "case": case.name, "task": case.task, "algo": case.algo,
+        "time_limit": case.time, "wall_s": round(wall, 1), "exit": done.returncode,
+        "bt_nodes": int(match.group(1)) if match else None,
+        "retention_confirmed": float(match.group(2)) if match else None,
+        "met": (match.group(3) == "meets") if match else None,
+        "stopped_by_time": "--time budget ended" in said, "cpus": os.cpu_count(),
+        "load_before": round(load, 2)}
+    if not match:
+        row["error"] = said.strip().splitlines()[-1] if said.strip() else "no output"
+    if case.full and match:
+        row.update(full_ladder(case, out / "cache", int(match.group(1))))
+    return row
+
+
+def full_ladder(case: Case, cache: Path, chosen_nodes: int) -> dict[str, object]:
+    """Every rung and step on the run's cache: the smallest BT that keeps the target at any
+    leaf limit, against the one the stop rule recommended."""
+    from ibt.runs.engine.agent import sb3_agent
+    from ibt.runs.recommend import recommend
+    from ibt.tasks.catalogue import import_env_module, resolve_task
+
+    if case.env_module:
+        sys.path.insert(0, str(OUT))
+        import_env_module(case.env_module)
+    task = resolve_task(case.task)
+    from ibt.experts.expert import expert_path
+
+    checkpoint = ROOT / case.checkpoint if case.checkpoint else expert_path(task, case.algo)
+    start = time.perf_counter()
+    modules = (case.env_module,) if case.env_module else ()
+    rec = recommend(sb3_agent(task, case.algo, checkpoint), cache_dir=cache, progress=False,
+                    env_modules=modules,
+                    full=True, time_limit=None, n_jobs=os.cpu_count() or 1)
+    keeping = [c.bt_nodes for c in rec.candidates if c.retention >= 100 * rec.keep]
+    return {"full_wall_s": round(time.perf_counter() - start, 1),
+            "full_candidates": len(rec.candidates),
+            "full_smallest_keeping": min(keeping) if keeping else None,
+            "smaller_bt_at_larger_limit": bool(keeping) and min(keeping) < chosen_nodes}
+
+
+def main(names: list[str]) -> None:
+    chosen = [c for c in CASES if not names or c.name in names]
+    unknown = set(names) - {c.name for c in CASES}
+    if unknown:
+        raise SystemExit(f"unknown cases {sorted(unknown)}; known: {[c.name for c in CASES]}")
+    train_user_agents()
+    rows = []
+    for case in chosen:
+        rows.append(run(case))
+        print(rows[-1], flush=True)
+    frame = pd.DataFrame(rows)
+    if CSV.exists():
+        old = pd.read_csv(CSV)
+        frame = pd.concat([old[~old["case"].isin(frame["case"])], frame], ignore_index=True)
+    order = {c.name: i for i, c in enumerate(CASES)}
+    frame = frame.sort_values("case", key=lambda s: s.map(order)).reset_index(drop=True)
+    from ibt.files import atomic_write_text
+
+    atomic_write_text(CSV, frame.to_csv(index=False))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

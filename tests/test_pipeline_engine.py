@@ -1,0 +1,183 @@
+"""The pipeline's engine: the anytime ladder (smallest leaf limit first, a stop on the target,
+a deadline or a signal), restarts on local cores or a Dask cluster, Box agents (SAC, TD3) and
+agents given as ``MODULE:FUNCTION`` callables, all under the smoke budget."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+
+import pytest
+
+from ibt.cli import main
+from ibt.runs.engine import stages
+from ibt.runs.engine.agent import callable_agent, sb3_agent
+from ibt.runs.engine.ladder import Deadline, Settings, run_ladder
+from ibt.runs.recommend import choose, parse_budget, recommend
+from tests.test_recommend import FILES, _candidate
+
+pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
+LINE = ["--env-module", "tests.fixtures.toy_line"]
+SMOKE = ["--budget", "smoke", "--quiet"]
+
+AGENT_SOURCE = '''
+"""A hand-written agent for ToyLine-v0: step towards the middle."""
+
+
+def act(obs):
+    return 0 if obs[0] > 0.1 else 2 if obs[0] < -0.1 else 1
+'''
+
+
+def _line_agent(agents):
+    from ibt.tasks.catalogue import resolve_task
+
+    return sb3_agent(resolve_task("ToyLine-v0"), "ppo", agents / "line.zip")
+
+
+def test_the_ladder_stops_at_the_first_limit_that_keeps_the_target(agents, tmp_path):
+    rec = recommend(_line_agent(agents), budget=parse_budget("smoke"), keep=0.01,
+                    leaf_limits=(16, 4, 8), cache_dir=tmp_path, progress=False)
+    assert rec.ladder.steps == ["distil axis at 4 leaves", "refine axis at 4 leaves"]
+    assert rec.stopped is None and rec.met_on_choice
+    assert {c.leaf_limit for c in rec.candidates} == {4}
+
+
+def test_a_stop_between_steps_keeps_what_was_done(agents, tmp_path):
+    import ibt
+
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    agent = _line_agent(agents)
+    settings = Settings(keep=1.0, rungs=(4, 8), restarts=1)
+    ladder = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
+                        on_step=lambda done, step: "enough" if done.steps else None)
+    assert ladder.stopped == "enough" and ladder.steps == ["distil axis at 4 leaves"]
+    assert "refine axis at 4 leaves" in ladder.skipped and len(ladder.candidates) == 1
+    ticks = iter([0.0, 5.0])  # the deadline passes before the first step
+    late = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
+                      deadline=Deadline(1.0, clock=lambda: next(ticks, 5.0)))
+    assert late.stopped == "time" and late.candidates == []
+
+
+def test_ctrl_c_after_the_first_candidate_leaves_a_complete_marked_report(
+        agents, tmp_path, monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(stages, "refine", interrupted)
+    out = tmp_path / "out"
+    argv = ["pipeline", "ToyLine-v0", "ppo", *LINE, "--checkpoint", str(agents / "line.zip"),
+            "-o", str(out), *SMOKE]
+    assert main(argv) == 130
+    assert "stopped by Ctrl-C" in capsys.readouterr().out
+    report = (out / "report.md").read_text()
+    assert "**This run was stopped before its last step**" in report
+    assert "Ctrl-C stopped it" in report and "refine axis at 4 leaves" in report
+    assert all((out / name).stat().st_size > 0 for name in FILES)
+
+
+def test_max_nodes_bounds_the_recommendation():
+    small, big = _candidate(3, 50.0), _candidate(9, 99.0)
+    assert choose([small, big], 0.95) == (big, True)
+    assert choose([small, big], 0.95, max_nodes=5) == (small, False)
+    with pytest.raises(ValueError, match="no BT of at most 2 nodes"):
+        choose([small, big], 0.95, max_nodes=2)
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["--time", "0"], "--time: a duration must be more than 0"),
+    (["--time", "soon"], "--time: expected a duration such as 90s"),
+    (["--max-nodes", "0"], "--max-nodes"),
+    (["--restarts", "1000"], "--restarts"),
+    (["--agent", "x.py:act"], "--agent is for algo callable"),
+])
+def test_new_options_are_checked_in_one_line(agents, tmp_path, capsys, extra, says):
+    out = tmp_path / "out"
+    argv = ["pipeline", "ToyLine-v0", "ppo", *LINE, "--checkpoint", str(agents / "line.zip"),
+            "-o", str(out), *SMOKE, *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1
+    assert not (out / "report.md").exists()
+
+
+def test_restarts_on_a_dask_cluster_choose_the_same_bt_as_local_cores(agents, tmp_path,
+                                                                     monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    agent = _line_agent(agents)
+    run = dict(budget=parse_budget("smoke"), leaf_limits=(4,), restarts=2, n_jobs=2,
+               full=True, progress=False, env_modules=("tests.fixtures.toy_line",))
+    local = recommend(agent, cache_dir=tmp_path / "local", **run)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        monkeypatch.setenv("IBT_DASK_SCHEDULER", cluster.scheduler_address)
+        remote = recommend(agent, cache_dir=tmp_path / "dask", **run)
+    searched = [c for c in local.candidates if c.search is not None]
+    assert searched and all(len(c.search.seeds) == 2 for c in searched)
+    assert [c.bt.to_json() for c in local.candidates] == [
+        c.bt.to_json() for c in remote.candidates]
+    assert local.chosen.bt.to_json() == remote.chosen.bt.to_json()
+
+
+def test_a_callable_agent_gets_the_six_files(tmp_path, capsys):
+    (tmp_path / "line_agent.py").write_text(AGENT_SOURCE)
+    out = tmp_path / "out"
+    spec = f"{tmp_path / 'line_agent.py'}:act"
+    assert main(["pipeline", "ToyLine-v0", "callable", "--agent", spec, *LINE, "-o", str(out),
+                 *SMOKE, "--leaves", "4"]) == 0
+    assert "recommended a" in capsys.readouterr().out
+    assert all((out / name).stat().st_size > 0 for name in FILES)
+    report = (out / "report.md").read_text()
+    assert "callable agent" in report and spec in report
+
+
+def test_a_callable_agent_is_identified_by_its_source(tmp_path):
+    from ibt.tasks.catalogue import import_env_module, resolve_task
+
+    import_env_module("tests.fixtures.toy_line")
+    path = tmp_path / "agent.py"
+    path.write_text(AGENT_SOURCE)
+    first = callable_agent(resolve_task("ToyLine-v0"), f"{path}:act").digest
+    path.write_text(AGENT_SOURCE.replace("0.1", "0.3"))
+    assert callable_agent(resolve_task("ToyLine-v0"), f"{path}:act").digest != first
+
+
+# --- Box agents ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def thruster(tmp_path_factory):
+    """A user's Box task (Thruster-v0) with tiny SAC and TD3 agents (seconds; quality does
+    not matter here)."""
+    import gymnasium as gym
+    from stable_baselines3 import SAC, TD3
+
+    from tests.test_env_module_box import ENV_SOURCE
+
+    folder = tmp_path_factory.mktemp("thruster")
+    (folder / "ibt_user_thruster.py").write_text(ENV_SOURCE)
+    sys.path.insert(0, str(folder))
+    import ibt_user_thruster  # noqa: F401
+
+    for name, algo, steps, rate in (("sac", SAC, 200, 3e-4), ("td3", TD3, 1000, 3e-3)):
+        model = algo("MlpPolicy", gym.make("Thruster-v0"), learning_starts=50, batch_size=32,
+                     seed=0, device="cpu", policy_kwargs={"net_arch": [16]},
+                     learning_rate=rate)
+        model.learn(steps)
+        model.save(folder / f"{name}.zip")
+    yield folder
+    sys.path.remove(str(folder))
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3"])
+def test_a_box_agent_gets_the_six_files_with_named_commands(thruster, tmp_path, algo):
+    out = tmp_path / algo
+    assert main(["pipeline", "Thruster-v0", algo, "--checkpoint", str(thruster / f"{algo}.zip"),
+                 "--env-module", "ibt_user_thruster", "-o", str(out), *SMOKE,
+                 "--leaves", "2,4"]) == 0
+    assert all((out / name).stat().st_size > 0 for name in FILES)
+    doc = json.loads((out / "bt.json").read_text())
+    assert doc["commands"]["dimensions"] == ["a0"] or len(doc["commands"]["dimensions"]) == 1
+    report = (out / "report.md").read_text()
+    assert "structure search is for discrete actions" in report
