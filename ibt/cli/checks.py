@@ -295,6 +295,29 @@ def _again(args: argparse.Namespace, *extra: str) -> str:
     return "python -m ibt " + shlex.join([*args.argv, *extra])
 
 
+# ---------------------------------------------------------------------- environments
+EPISODE_STEPS = _int_at_least(1, "steps of an episode", 10**7)
+
+
+def task_for(args: argparse.Namespace, name: str) -> Task:
+    """The task a command line names, ready to roll out: resolved, a user's task checked
+    against its environment (``TaskMismatch``, one line), and its episodes cut at
+    ``--max-episode-steps`` or, where neither it nor its environment sets a limit, at the
+    default cut, said once on stderr."""
+    import sys
+
+    from ibt.tasks.catalogue import check_user_task, resolve_task, with_episode_cap
+
+    task = resolve_task(name)
+    check_user_task(task)
+    task, notice = with_episode_cap(task, getattr(args, "max_episode_steps", None))
+    said = args.__dict__.setdefault("notices_said", set())
+    if notice is not None and notice not in said:
+        said.add(notice)
+        print(notice, file=sys.stderr)
+    return task
+
+
 # ------------------------------------------------------------------------ tree files
 def load_tree_file(path: str | Path, args: argparse.Namespace | None = None) -> dict[str, Any]:
     """A tree file of :mod:`ibt.distill.tree_file`, checked; a pickle only with --trust-pickle."""
@@ -312,8 +335,6 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
 
     A name of the form ``MODULE:EnvId`` in the file imports nothing: only ``--env-module`` on
     the command line imports (a file must not choose the code that runs)."""
-    from ibt.tasks.catalogue import resolve_task
-
     name = doc["task"]
     module, colon, bare = name.rpartition(":")
     if colon and module not in args.env_module:
@@ -322,7 +343,7 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
                          f"a tree file imports nothing: if you trust that module, run "
                          f"`{retry}`")
     try:
-        task = resolve_task(bare)
+        task = task_for(args, bare)
     except LookupError:
         modules = [m for m in doc.get("env_modules", []) if m not in args.env_module]
         if modules:

@@ -38,6 +38,7 @@ from ibt.cli.checks import (
     one_line_warnings,
     read_input,
     same_path,
+    task_for,
 )
 
 
@@ -91,9 +92,8 @@ def _train(args: argparse.Namespace) -> int:
 def _random(args: argparse.Namespace) -> int:
     from ibt.experts.training import random_baselines
     from ibt.paths import DATA_DIR
-    from ibt.tasks.catalogue import resolve_task
 
-    tasks = [resolve_task(t) for t in args.tasks]
+    tasks = [task_for(args, t) for t in args.tasks]
     path = check_output(args.output or DATA_DIR / "experts" / "random.csv", (".csv",))
     print(random_baselines(tasks or None, n_episodes=args.episodes, path=path)
           .to_string(index=False))
@@ -104,9 +104,8 @@ def _distill(args: argparse.Namespace) -> int:
     from ibt.distill.loop import DistillConfig, distill
     from ibt.distill.tree_file import save_tree_file
     from ibt.experts.expert import load_expert
-    from ibt.tasks.catalogue import resolve_task
 
-    task = resolve_task(args.task)
+    task = task_for(args, args.task)
     out = check_output(args.output, (".json",))
     expert = load_expert(task, args.algo, args.checkpoint)
     if task.continuous:  # issue 25: a regression tree, merged into named commands
@@ -221,12 +220,11 @@ def _refine_commands(doc: dict[str, Any], task: Any, out: Path, overrides: dict[
     from ibt.refine.tree_arrays import TreeArrays
     from ibt.runs.continuous import box_refine_task_config, command_tree_of
     from ibt.synth.commands import DECIMALS
-    from ibt.tasks.catalogue import resolve_task
 
     if overrides.pop("max_leaves") is not None:
         raise UsageError(f"{args.tree} is a command tree: refinement keeps its shape, so "
                          "--max-leaves does not apply; distil with --max-leaf-nodes instead")
-    box = resolve_task(task.name)
+    box = task_for(args, task.name)
     commands = Commands.from_dict(doc["commands"], len(doc["action_names"]))
     arrays = CommandArrays(TreeArrays.from_sklearn(doc["tree"]),
                            commands.array().astype(np.float64))
@@ -324,7 +322,7 @@ def _load_policy(path: Path, args: argparse.Namespace):
                                  f"{known[0]}'s: run `{_again(args, '--task', known[0])}`")
             raise UsageError("a BT file does not name its task; pass --task with the "
                              "environment it was made for")
-        task = resolve_task(args.task)
+        task = task_for(args, args.task)
         if (bt.commands is None) == task.continuous:
             has = (f"sends commands ({', '.join(bt.commands.dimensions)})" if bt.commands
                    else f"has discrete actions ({', '.join(bt.action_names)})")
@@ -359,7 +357,7 @@ def _load_policy(path: Path, args: argparse.Namespace):
         from ibt.bt.model import Commands
         from ibt.synth.commands import CommandTree
 
-        box = resolve_task(task.name)
+        box = task_for(args, task.name)
         tree = CommandTree(doc["tree"], Commands.from_dict(doc["commands"],
                                                            len(doc["action_names"])), task)
         return box, _Act(tree.policy(box))
@@ -376,13 +374,12 @@ class _Act:
 def _evaluate(args: argparse.Namespace) -> int:
     from ibt.evaluate.rollouts import episode_metrics, final_seeds, rollout
     from ibt.experts.expert import load_expert
-    from ibt.tasks.catalogue import resolve_task
 
     if args.policy in ALGOS:
         if args.task is None:
             raise UsageError(f"evaluating an expert needs --task, e.g. "
                              f"`{_again(args, '--task', 'CartPole-v1')}`")
-        task = resolve_task(args.task)
+        task = task_for(args, args.task)
         policy: Any = load_expert(task, args.policy, args.checkpoint)
     else:
         if args.checkpoint is not None:
@@ -422,12 +419,11 @@ def _export(args: argparse.Namespace) -> int:
 
 def _run_btcpp(args: argparse.Namespace) -> int:
     from ibt.export.engine import run_btcpp
-    from ibt.tasks.catalogue import resolve_task
 
     hint = "write one with `python -m ibt export BT.json --format btcpp-xml -o BT.xml`"
     xml = check_input(args.xml, "BehaviorTree.CPP XML", hint)
     read_input(xml, "BehaviorTree.CPP XML", hint)  # a regular file of bounded size
-    run = run_btcpp(xml, resolve_task(args.task), args.episodes, args.groot_port,
+    run = run_btcpp(xml, task_for(args, args.task), args.episodes, args.groot_port,
                     args.step_delay)
     print(run.summary())
     if not run.ok:
@@ -458,7 +454,6 @@ def _pipeline(args: argparse.Namespace) -> int:
     from ibt.runs.engine.agent import callable_agent, sb3_agent
     from ibt.runs.owned_folder import FolderError, claim, take
     from ibt.runs.recommend_files import OUTPUTS
-    from ibt.tasks.catalogue import resolve_task
 
     # every path is checked before any work: the folder, the cache, the checkpoint
     out = check_output_folder(args.output, "-o")
@@ -466,7 +461,7 @@ def _pipeline(args: argparse.Namespace) -> int:
     if same_path(cache, out):
         raise UsageError(f"--cache-dir {cache} is the output folder itself; drop --cache-dir "
                          f"(the cache then goes to {out / 'cache'}) or name another folder")
-    task = resolve_task(args.task)
+    task = task_for(args, args.task)
     if args.algo == "callable":
         if args.agent is None or args.checkpoint is not None:
             raise UsageError("algo callable takes --agent MODULE:FUNCTION (and no --checkpoint)")

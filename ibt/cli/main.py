@@ -41,6 +41,7 @@ if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
     pass
 
 from ibt.cli.checks import (
+    EPISODE_STEPS,
     EPISODES,
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
@@ -252,6 +253,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "read-only files are never replaced")
     pl.add_argument("--quiet", action="store_true", help="no progress bars")
     pl.set_defaults(func=_pipeline)
+    for rolls_out in (rnd, dist, ref, ev, rb, pl):
+        rolls_out.add_argument("--max-episode-steps", type=EPISODE_STEPS, default=None,
+                               metavar="N", help="cut every episode at N steps (default: the "
+                               "environment's own limit, or 1,000 steps where it sets none)")
     return parser
 
 

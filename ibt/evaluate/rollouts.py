@@ -8,12 +8,15 @@ and final evaluation episodes disjoint.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from ibt.tasks.builtin import BUILTIN, CONTINUOUS
+from ibt.tasks.settings import DEFAULT_MAX_EPISODE_STEPS
 from ibt.tasks.task import Task
 
 FINAL_SEED_BASE = 1_000_000  # final evaluation: the same episodes for every method and expert
@@ -58,6 +61,68 @@ ActFn = Callable[[np.ndarray], np.ndarray]
 IndexedActFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (obs, episode indices)
 
 
+_ONE_LINE = 160  # characters of an environment's own error message kept in ours
+
+
+class EnvError(RuntimeError):
+    """The environment misbehaved: its ``reset``/``step`` raised, or returned a non-finite
+    reward or an observation that is not finite or not of its observation space's shape. The
+    message is one line: the environment, the call, the episode's seed and step, the fault and
+    the fix (the command line prints it and exits with 2)."""
+
+
+def _fault(task: Task, call: str, seed: int, step: int, problem: str, fix: str) -> EnvError:
+    where = "reset" if call == "reset" else f"step {step}"
+    return EnvError(f"the environment {task.gym_id} failed in {call}() ({where} of the episode "
+                    f"with seed {seed}): {problem}; {fix}")
+
+
+def _raised(err: BaseException) -> str:
+    text = " ".join(str(err).split())
+    text = text if len(text) <= _ONE_LINE else text[:_ONE_LINE - 3] + "..."
+    return f"it raised {type(err).__name__}" + (f": {text}" if text else "")
+
+
+def _bad_obs(task: Task, obs: Any, shape: tuple[int, ...] | None) -> str | None:
+    """Why ``obs`` (one observation) is unusable, or None."""
+    try:
+        array = np.asarray(obs)
+    except Exception as err:  # a ragged or strange object
+        return f"it returned an observation numpy cannot read ({type(err).__name__})"
+    if shape is not None and array.shape != shape:
+        return (f"it returned an observation of shape {array.shape}, but its observation_space "
+                f"has shape {shape}")
+    if array.dtype.kind not in "biuf":
+        return f"it returned an observation of dtype {array.dtype}, not numbers"
+    if not np.isfinite(array).all():
+        bad = np.flatnonzero(~np.isfinite(array.reshape(-1)))
+        names = task.feature_names
+        which = ", ".join(f"{names[i] if i < len(names) else i}={array.reshape(-1)[i]}"
+                          for i in bad[:3])
+        return f"it returned a non-finite observation ({which})"
+    return None
+
+
+#: the catalogue's own tasks: their episodes end (highway's by its own clock, with no limit set)
+_BUILTIN = frozenset(t.name for t in (*BUILTIN, *CONTINUOUS))
+
+
+def _capped(env: Any, task: Task) -> Any:
+    """``env`` with a time limit: an environment that sets none (a user's) is cut at
+    :data:`DEFAULT_MAX_EPISODE_STEPS` (with a warning), so that no rollout runs forever."""
+    spec = getattr(env, "spec", None)
+    if task.name in _BUILTIN or (spec is not None and spec.max_episode_steps is not None):
+        return env
+    import warnings
+
+    import gymnasium as gym
+
+    warnings.warn(f"{getattr(spec, 'id', env)} sets no max_episode_steps: its episodes are "
+                  f"cut at {DEFAULT_MAX_EPISODE_STEPS:,} steps (set Task.episode_cap, or "
+                  "--max-episode-steps N on the command line)", stacklevel=3)
+    return gym.wrappers.TimeLimit(env, DEFAULT_MAX_EPISODE_STEPS)
+
+
 def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_envs: int = 16,
             collect: bool = False, budget: int | None = None,
             env_kwargs: dict[str, Any] | None = None,
@@ -71,11 +136,17 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
     ``act(obs, episodes)``, where ``episodes`` are the positions in ``seeds`` of the episodes
     the rows belong to (how one batch runs several policies side by side, see
     ``ibt.refine.by_return``).
+
+    The environment is checked as it runs, at a cost of one test per step and one per batch:
+    an exception from its ``reset``/``step``, a reward that is not a finite number (or returns
+    that overflow), an observation that is not finite or not of its space's shape all raise
+    :class:`EnvError`, which names the call, the episode's seed and step. An environment that
+    sets no episode limit is cut at :data:`DEFAULT_MAX_EPISODE_STEPS` steps.
     """
     seeds = list(seeds)
     box = task.continuous  # actions are vectors (rows of ``act``'s answer), not indices
     n_slots = max(1, min(n_envs, len(seeds)))
-    envs = [task.make_env(**(env_kwargs or {})) for _ in range(n_slots)]
+    envs = [_capped(task.make_env(**(env_kwargs or {})), task) for _ in range(n_slots)]
     returns = np.zeros(len(seeds))
     lengths = np.zeros(len(seeds), dtype=np.int64)
     infos: list[dict[str, Any]] = [{} for _ in seeds]
@@ -83,17 +154,52 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
     collected: list[np.ndarray] = []
     slot_episode = [-1] * n_slots
     slot_obs: list[Any] = [None] * n_slots
+    slot_return = [0.0] * n_slots  # the running episode's return and length, as Python numbers
+    slot_length = [0] * n_slots
+    space_shape = getattr(envs[0].observation_space, "shape", None)
+    shape = None if space_shape is None else tuple(space_shape)
     next_episode = 0
     steps = 0
+    isfinite = math.isfinite
 
     def start(slot: int) -> None:
         nonlocal next_episode
         if next_episode >= len(seeds) or (budget is not None and steps >= budget):
             slot_episode[slot] = -1
             return
-        slot_episode[slot] = next_episode
-        slot_obs[slot], _ = envs[slot].reset(seed=int(seeds[next_episode]))
+        seed = int(seeds[next_episode])
+        slot_episode[slot], slot_return[slot], slot_length[slot] = next_episode, 0.0, 0
+        try:
+            answer = envs[slot].reset(seed=seed)
+        except Exception as err:
+            raise _fault(task, "reset", seed, 0, _raised(err), "fix its reset()") from err
+        try:
+            slot_obs[slot], _ = answer
+        except (TypeError, ValueError):
+            raise _fault(task, "reset", seed, 0, "it returned no (observation, info) pair",
+                         "gymnasium's reset returns (observation, info)") from None
         next_episode += 1
+
+    def check(active: list[int]) -> np.ndarray:
+        """The batch of observations, after checking it (rows are looked at only on a fault)."""
+        try:
+            obs = np.stack([np.asarray(slot_obs[s]) for s in active])
+            if ((shape is None or obs.shape[1:] == shape) and obs.dtype.kind in "biuf"
+                    and (obs.dtype.kind != "f" or np.isfinite(obs).all())):
+                return obs
+        except Exception:  # ragged shapes: one row is at fault, found below
+            pass
+        for s in active:
+            problem = _bad_obs(task, slot_obs[s], shape)
+            if problem is not None:
+                call = "reset" if slot_length[s] == 0 else "step"
+                fix = (f"make its {call}() return finite observations" if "finite" in problem
+                       else f"make its {call}() return observations of its observation_space")
+                raise _fault(task, call, int(seeds[slot_episode[s]]), slot_length[s], problem,
+                             fix)
+        raise _fault(task, "step", int(seeds[slot_episode[active[0]]]), slot_length[active[0]],
+                     "its observations cannot be stacked into a batch",
+                     "return numeric arrays of its observation_space")
 
     for slot in range(n_slots):
         start(slot)
@@ -102,7 +208,7 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
             active = [s for s in range(n_slots) if slot_episode[s] >= 0]
             if not active:
                 break
-            obs = np.stack([np.asarray(slot_obs[s]) for s in active])
+            obs = check(active)
             if indexed:
                 episodes = np.array([slot_episode[s] for s in active])
                 actions = np.asarray(act(obs, episodes))  # type: ignore[call-arg]
@@ -114,12 +220,28 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
                 collected.append(obs)
             steps += len(active)
             for s, action in zip(active, actions, strict=True):
-                ep = slot_episode[s]
-                slot_obs[s], reward, terminated, truncated, info = envs[s].step(
-                    np.asarray(action, dtype=np.float32) if box else int(action))
-                returns[ep] += float(reward)
-                lengths[ep] += 1
+                a = np.asarray(action, dtype=np.float32) if box else int(action)
+                try:
+                    answer = envs[s].step(a)
+                except Exception as err:
+                    raise _fault(task, "step", int(seeds[slot_episode[s]]), slot_length[s] + 1,
+                                 f"{_raised(err)} (action {a!r})", "fix its step()") from err
+                try:
+                    slot_obs[s], reward, terminated, truncated, info = answer
+                    total = slot_return[s] + float(reward)
+                except (TypeError, ValueError):
+                    raise _fault(task, "step", int(seeds[slot_episode[s]]), slot_length[s] + 1,
+                                 _bad_answer(answer), "gymnasium's step returns (observation, "
+                                 "reward, terminated, truncated, info), the reward a number"
+                                 ) from None
+                slot_length[s] += 1
+                if not isfinite(total):
+                    raise _fault(task, "step", int(seeds[slot_episode[s]]), slot_length[s],
+                                 *_bad_reward(reward, total))
+                slot_return[s] = total
                 if terminated or truncated:
+                    ep = slot_episode[s]
+                    returns[ep], lengths[ep] = total, slot_length[s]
                     infos[ep] = dict(info)
                     terminal[ep] = bool(terminated)
                     start(s)
@@ -128,6 +250,21 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
             env.close()
     used = next_episode
     return Rollout(returns[:used], lengths[:used], infos[:used], terminal[:used], collected)
+
+
+def _bad_answer(answer: Any) -> str:
+    if not isinstance(answer, tuple) or len(answer) != 5:
+        size = f"{len(answer)} values" if isinstance(answer, tuple) else type(answer).__name__
+        return f"it returned {size}, not gymnasium's 5"
+    return f"it returned a reward {answer[1]!r:.40} that is not a number"
+
+
+def _bad_reward(reward: Any, total: float) -> tuple[str, str]:
+    """The problem and the fix of a step whose reward, or the return so far, is not finite."""
+    if not math.isfinite(float(reward)):
+        return f"it returned the reward {float(reward)}", "return finite rewards"
+    return (f"the rewards summed to {total} (this reward: {float(reward):.3g})",
+            "scale the reward down so that an episode's return stays finite")
 
 
 def _rate(values: Any) -> float:
@@ -170,5 +307,21 @@ def retention_raw(mean_return: float, expert_return: float) -> float:
 
 def retention_norm(mean_return: float, expert_return: float, random_return: float) -> float:
     """Random-normalised retention: 0 = random policy, 100 = expert (meaningful for negative
-    returns, where the raw percentage is not)."""
-    return 100.0 * (mean_return - random_return) / (expert_return - random_return)
+    returns, where the raw percentage is not). NaN where the expert's return is the random
+    policy's: retention is then undefined (a share of no difference), not an error."""
+    span = expert_return - random_return
+    if span == 0 or not math.isfinite(span):
+        return float("nan")
+    return 100.0 * (mean_return - random_return) / span
+
+
+def retention_margin(policy_std: float, expert_std: float, n_episodes: int,
+                     expert_return: float, random_return: float) -> float:
+    """Two standard errors of a random-normalised retention, in percentage points: the noise
+    of ``policy - expert`` over ``n_episodes`` episodes each, on the retention's scale (NaN
+    where retention is undefined). A retention above ``100 + margin`` beats the expert beyond
+    noise."""
+    span = abs(expert_return - random_return)
+    if span == 0 or not math.isfinite(span) or n_episodes < 1:
+        return float("nan")
+    return 200.0 * math.sqrt((policy_std ** 2 + expert_std ** 2) / n_episodes) / span

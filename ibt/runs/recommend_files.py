@@ -197,6 +197,41 @@ def ladder_text(rec: Recommendation) -> list[str]:
     return [*lines, ""] if lines[-1] else lines
 
 
+def beyond_the_agent(rec: Recommendation) -> list[str]:
+    """Report lines flagging every retention above 100 % by more than its noise (two standard
+    errors), on the confirmation episodes and on the choice episodes, and a retention that is
+    undefined (the agent's mean return is the random policy's): such numbers must not be read
+    as a plain share of the agent."""
+    import math
+
+    from ibt.evaluate.rollouts import retention_margin
+
+    n, agent_std = rec.episodes, rec.agent.std
+    if math.isnan(rec.retention):
+        return [f"**Retention undefined**: on the confirmation episodes the agent's mean return "
+                f"({rec.agent.mean:.2f}) is the random policy's ({rec.random.mean:.2f}), so a "
+                "share of their difference means nothing: the agent does no better than the "
+                "random policy; train it further before distilling it.", ""]
+    flagged = []
+    margin = retention_margin(rec.bt.std, agent_std, n, rec.agent.mean, rec.random.mean)
+    if rec.retention > 100 + margin:
+        flagged.append(f"the recommended BT on the confirmation episodes, {rec.retention:.1f} % "
+                       f"(noise +- {margin:.1f})")
+    for c in rec.candidates:
+        margin = retention_margin(c.std_return, agent_std, n, rec.agent_choice,
+                                  rec.random_choice)
+        if c.retention > 100 + margin:
+            flagged.append(f"the {c.label} tree at leaf limit {c.leaf_limit} on the choice "
+                           f"episodes, {c.retention:.1f} % (noise +- {margin:.1f})")
+    if not flagged:
+        return []
+    return [f"**Above the agent beyond noise** (two standard errors of the difference): "
+            f"{'; '.join(flagged)}. These BTs return more than the agent on these episodes: the "
+            "agent is not optimal there (a small tree can undo its mistakes) or its returns are "
+            "noisy; read such a retention as 'at least as good as the agent', and check it on "
+            "more `--episodes`.", ""]
+
+
 def report_text(rec: Recommendation, out: Path) -> str:
     """``report.md``."""
     c, keep = rec.chosen, 100 * rec.keep
@@ -239,6 +274,7 @@ def report_text(rec: Recommendation, out: Path) -> str:
         f"both measured here on the same episodes.", "",
         *returns, "",
         f"Retention: **{rec.retention:.1f} %** (target {keep:.0f} %).", "",
+        *beyond_the_agent(rec),
         "## The front (choice episodes)", "",
         f"Every candidate on {rec.episodes} other held-out episodes (seeds "
         f"{rec.bt.first_seed - rec.episodes} to {rec.bt.first_seed - 1}; agent "

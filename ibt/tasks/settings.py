@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 DEFAULT_MAX_LEAF_NODES = 16  #: the leaf limit of tasks without a budget (a readable BT)
+DEFAULT_MAX_EPISODE_STEPS = 1_000  #: where an environment that sets no episode limit is cut
 ALGOS = ("dqn", "ppo", "a2c", "sac", "td3")  #: the expert algorithms (Stable-Baselines3)
 DISCRETE_ALGOS = ("dqn", "ppo", "a2c")  #: those the discrete tasks' experts are trained with
 CONTINUOUS_ALGOS = ("sac", "td3", "ppo")  #: those that act in a Box (continuous actions)

@@ -77,6 +77,10 @@ class Task:
     action_low: tuple[float, ...] = ()
     action_high: tuple[float, ...] = ()
     action_units: tuple[str, ...] = ()  # one unit per dimension ("" where none), for readers
+    # --- where episodes are cut when this run says so (not the catalogue's) ---
+    # --max-episode-steps, or the default cap of an environment that sets no limit: overrides
+    # the environment's own limit and is part of every cache key (:attr:`key`)
+    episode_cap: int | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.kwargs, Mapping):
@@ -94,9 +98,21 @@ class Task:
             if self.action_units and len(self.action_units) != n:
                 raise ValueError(f"{self.name}: action_units must name one unit per action "
                                  f"dimension ({n})")
+        if self.episode_cap is not None and not (isinstance(self.episode_cap, int)
+                                                 and self.episode_cap >= 1):
+            raise ValueError(f"{self.name}: episode_cap must be a whole number of steps >= 1, "
+                             f"got {self.episode_cap!r}")
         if self.claim_group is not None and self.claim_group not in CLAIM_GROUPS:
             raise ValueError(f"claim_group must be one of {CLAIM_GROUPS}, got "
                              f"{self.claim_group!r}")
+
+    @property
+    def key(self) -> str:
+        """The task in cache keys: its name, with the episode cap where this run sets one (a
+        cut episode is another computation)."""
+        if self.episode_cap is None:
+            return self.name
+        return f"{self.name} (episodes cut at {self.episode_cap} steps)"
 
     @property
     def n_features(self) -> int:
@@ -147,7 +163,9 @@ class Task:
         # gymnasium's passive checker only warns, once per env; skipping it saves a wrapper
         # call on every step of every rollout
         kwargs.setdefault("disable_env_checker", True)
-        if self.max_episode_steps is not None:
+        if self.episode_cap is not None:
+            kwargs["max_episode_steps"] = self.episode_cap
+        elif self.max_episode_steps is not None:
             kwargs.setdefault("max_episode_steps", self.max_episode_steps)
         return gym.make(self.gym_id, **kwargs)
 

@@ -70,7 +70,7 @@ def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: li
     """A policy's returns on ``seeds`` (consecutive), cached under ``what`` (``bt``: a BT's
     digest, ``tree``: a tree's, else an agent's or the random policy's identity) as the kind
     ``returns``: every episode's return, where the grid's evaluation kinds keep summaries."""
-    params = {"task": task.name, "episodes": len(seeds), "first_seed": seeds[0], **what}
+    params = {"task": task.key, "episodes": len(seeds), "first_seed": seeds[0], **what}
 
     def compute() -> dict[str, Any]:
         return {"returns": [float(r) for r in rollout(task, act(), seeds).returns]}
@@ -160,7 +160,7 @@ def distill_key(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
                                 **overrides)
         kind = "distill-rel" if relational else "distill"
         extra = {"learner": learner_params()} if relational else {}
-    params = {"task": task.name, "algo": agent.algo, "seed": seed, "config": config.as_params(),
+    params = {"task": task.key, "algo": agent.algo, "seed": seed, "config": config.as_params(),
               **extra, "expert_sha256": agent.digest}
     return kind, params, config
 
@@ -220,7 +220,7 @@ def commands(cfg: Config, agent: Agent, tree_doc: dict[str, Any], seed: int) -> 
 
     task = agent.task
     n = min(BOX_SELECTION_EPISODES, cfg.selection_episodes)
-    params = {"task": task.name, "algo": agent.algo, "seed": seed, "tree": doc_digest(tree_doc),
+    params = {"task": task.key, "algo": agent.algo, "seed": seed, "tree": doc_digest(tree_doc),
               "episodes": n, "tolerance": COMMAND_TOLERANCE, "decimals": DECIMALS}
 
     def choose() -> dict[str, Any]:
@@ -260,7 +260,7 @@ def command_refinement(cfg: Config, agent: Agent, arrays: Any, seed: int, config
     from ibt.synth.commands import DECIMALS
 
     task = agent.task
-    params = {"task": task.name, "algo": agent.algo, "seed": seed,
+    params = {"task": task.key, "algo": agent.algo, "seed": seed,
               "tree": doc_digest(arrays.to_doc()), "config": config.as_params(),
               "decimals": DECIMALS}
 
@@ -323,7 +323,7 @@ def evolve_key(agent: Agent, sources: list[Any], config: Any, seed: int, relatio
                scaled_weights: bool = False, agent_in_key: bool = True
                ) -> tuple[str, dict[str, Any]]:
     """The kind and key parameters of one structure search (see :func:`evolve_one`)."""
-    params: dict[str, Any] = {"task": agent.task.name, "algo": agent.algo, "seed": seed,
+    params: dict[str, Any] = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
                               "sources": [tree_digest(t) for t in sources],
                               "config": config.as_params()}
     if agent_in_key:
@@ -430,7 +430,7 @@ def synthesise(cfg: Config, agent: Agent, tree: Any, seed: int) -> dict[str, Any
     bts = {}
     for name in names:
         synthesiser = SYNTHESISERS[name]
-        params: dict[str, Any] = {"task": task.name, "algo": agent.algo, "method": name,
+        params: dict[str, Any] = {"task": task.key, "algo": agent.algo, "method": name,
                                   "seed": seed, "source_method": "pipeline",
                                   "tree": tree_key(tree)}
         if synthesiser.version is not None:
