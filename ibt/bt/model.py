@@ -117,19 +117,33 @@ class Action:
 def _index(value: Any, what: str) -> int:
     """``value`` as a non-negative integer index, or a ``ValueError`` naming ``what``."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise ValueError(f"{what} must be an integer index, got {value!r}")
+        raise ValueError(f"{what} must be an integer index, got {value!r:.60}")
     if value < 0:
-        raise ValueError(f"{what} must be a non-negative index, got {value!r}")
+        raise ValueError(f"{what} must be a non-negative index, got {value!r:.60}")
     return int(value)
 
 
 def _finite(value: Any) -> float:
-    """``value`` as a finite float, or a ``ValueError``."""
+    """``value`` as a finite float, or a ``ValueError`` (an integer too large for a double
+    included: it would be infinite)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"a condition's threshold must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"a condition's threshold must be finite, got {value!r}")
-    return float(value)
+        raise ValueError(f"a condition's threshold must be a number, got {value!r:.60}")
+    number = finite_number(value)
+    if number is None:
+        raise ValueError(f"a condition's threshold must be finite, got {value!r:.60}")
+    return number
+
+
+def finite_number(value: Any) -> float | None:
+    """``value`` (a JSON number) as a finite double, or ``None`` when it is not one (NaN,
+    infinity, an integer beyond the double range, not a number at all)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
 
 
 @dataclass(frozen=True)
@@ -211,10 +225,9 @@ class Commands:
         for i, row in enumerate(values):
             if not isinstance(row, list) or len(row) != len(dims):
                 raise ValueError(f"command {i} must be a list of {len(dims)} numbers")
-            bad = [v for v in row if isinstance(v, bool) or not isinstance(v, int | float)
-                   or not math.isfinite(v)]
+            bad = [v for v in row if finite_number(v) is None]
             if bad:
-                raise ValueError(f"command {i} ({row}) holds {bad[0]!r}, not a finite number; "
+                raise ValueError(f"command {i} holds {bad[0]!r:.60}, not a finite number; "
                                  "give every command finite values")
             rows.append(tuple(float(v) for v in row))
         return cls(dims, tuple(units), tuple(rows))
@@ -321,8 +334,12 @@ class BehaviorTree:
             raise ValueError(f"unknown key {unknown[0]!r} in a behavior-tree document; expected "
                              f"{', '.join(sorted(DOCUMENT_KEYS))}")
         if doc.get("format", FORMAT) != FORMAT:
-            raise ValueError(f"format {doc['format']!r} is not {FORMAT!r}, the one this version "
-                             "reads")
+            raise ValueError(f"format {doc['format']!r:.60} is not {FORMAT!r}, the one this "
+                             "version reads")
+        if doc.get("tick_rule", TICK_RULE) not in (TICK_RULE, TICK_RULE + RELATIONAL_TICK_RULE):
+            raise ValueError("its tick_rule is not the rule this version ticks by (a BT "
+                             "written for other semantics would not decide as its author meant);"
+                             " remove the key or write the BT with this version")
         names = _names(doc["feature_names"], "feature_names")
         labels_doc = doc.get("value_labels", {})
         if not isinstance(labels_doc, dict):
@@ -342,12 +359,10 @@ class BehaviorTree:
         return tree
 
     @classmethod
-    def from_json(cls, text: str) -> BehaviorTree:
-        try:
-            doc = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ValueError(f"not JSON ({err})") from None
-        return cls.from_dict(doc)
+    def from_json(cls, text: str | bytes) -> BehaviorTree:
+        """Read a BT document from strict JSON (UTF-8, no duplicate keys: a key given twice
+        would silently mean its last value): ``ValueError`` names the first problem."""
+        return cls.from_dict(strict_json(text))
 
     def validate(self) -> None:
         """Raise ``ValueError`` unless every feature and action index is in range, every
@@ -393,6 +408,29 @@ RELATIONAL_TICK_RULE = ("; a condition with a form {features: [i, j], weights: [
                         "float64 left to right with x = float64(float32(obs))")
 DOCUMENT_KEYS = frozenset({"format", "feature_names", "action_names", "tick_rule",
                            "value_labels", "commands", "root"})
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise ValueError(f"duplicate key {key!r:.60}")
+        doc[key] = value
+    return doc
+
+
+def strict_json(text: str | bytes) -> Any:
+    """The JSON value of ``text``; ``ValueError`` if it is not UTF-8, not JSON, has a duplicate
+    key or is nested too deeply for the parser (NaN literals are read: the reader of the value
+    says which field must be finite)."""
+    try:
+        if isinstance(text, bytes):
+            text = text.decode("utf-8")
+        return json.loads(text, object_pairs_hook=_no_duplicates)
+    except RecursionError:
+        raise ValueError("nested too deeply to be a behavior tree") from None
+    except ValueError as err:  # JSONDecodeError, UnicodeDecodeError, duplicate keys
+        raise ValueError(f"not strict JSON ({' '.join(str(err).split())})") from None
 
 
 def _names(values: Any, what: str) -> tuple[str, ...]:

@@ -312,7 +312,36 @@ def check_tree(model: Any) -> None:
     if not ok:
         raise PlainDataError("its nodes do not form a decision tree (children before their "
                              "parent, out of range, or sizes that disagree)")
+    _check_finite(t)
     fmap = getattr(model, _FEATURE_MAP, None)
     if fmap is not None and getattr(fmap, "width", None) != n_features:
         raise PlainDataError(f"the relational tree reads {n_features} columns, its feature "
                              "map defines a different number")
+    for k, form in enumerate(getattr(fmap, "forms", ())):
+        if not math.isfinite(_FLOAT32_MAX * (abs(form.w1) + abs(form.w2))):
+            raise PlainDataError(f"the weights of derived column {fmap.n_features + k} "
+                                 f"({form.w1!r}, {form.w2!r}) are too large: a linear form must "
+                                 "stay finite on every float32 observation")
+
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_NODE_NUMBERS = ("threshold", "impurity", "weighted_n_node_samples")
+
+
+def _check_finite(t: Any) -> None:
+    """:class:`PlainDataError` naming the first node whose threshold, impurity, weight or
+    class values are not finite numbers (NaN and infinity decide nothing: a NaN threshold sends
+    every state right, so the tree would not decide as the tree that was fitted)."""
+    nodes = t.__getstate__()["nodes"]
+    values = np.asarray(t.value, dtype=np.float64).reshape(len(nodes), -1)
+    for name in _NODE_NUMBERS:
+        bad = np.flatnonzero(~np.isfinite(nodes[name]))
+        if bad.size:
+            node = int(bad[0])
+            raise PlainDataError(f"node {node} has the {name.replace('_', ' ')} "
+                                 f"{float(nodes[name][node])!r}; every number of a tree must be "
+                                 "finite")
+    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+    if bad.size:
+        raise PlainDataError(f"node {int(bad[0])} has a class value that is not finite "
+                             f"({values[bad[0]].tolist()}); every number of a tree must be finite")

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 from ibt.distill.tree_codec import (
     PlainDataError,
+    check_tree,
     from_document,
     to_document,
     tree_from_data,
@@ -222,6 +223,10 @@ def _load_pickle(path: Path) -> dict[str, Any]:
     doc = {**doc, "env_modules": list(doc.get("env_modules", [])),
            "gym_id": doc.get("gym_id", doc["task"])}
     _check_names(doc, path)
+    try:
+        check_tree(doc["tree"])
+    except PlainDataError as err:
+        raise TreeFileError(f"{path} holds no valid decision tree ({err})") from None
     _check_fit(doc, path)
     return doc
 
