@@ -156,9 +156,10 @@ class FeatureMap:
     @classmethod
     def from_json(cls, doc: Any) -> FeatureMap:
         if not isinstance(doc, dict) or set(doc) != {"n_features", "forms"}:
-            raise ValueError(f"a feature map must be {{\"n_features\", \"forms\"}}, got {doc!r:.80}")
+            raise ValueError(f"a feature map must be {{\"n_features\", \"forms\"}}, got "
+                             f"{doc!r:.80}")
         n_features, forms = doc["n_features"], doc["forms"]
-        if isinstance(n_features, bool) or not isinstance(n_features, int) or n_features < 0:
+        if type(n_features) is not int or n_features < 0:
             raise ValueError(f"a feature map's n_features must be a non-negative integer, got "
                              f"{n_features!r:.60}")
         if not isinstance(forms, list):

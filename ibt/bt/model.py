@@ -59,13 +59,13 @@ class Condition:
 
     def __post_init__(self) -> None:
         if self.op not in OPS:
-            raise ValueError(f"condition op must be one of {OPS}, got {self.op!r}")
+            raise ValueError(f"condition op must be one of {OPS}, got {self.op!r:.60}")
         # normalised to plain int/float: NumPy scalars from scikit-learn compare equal anyway
         object.__setattr__(self, "feature", _index(self.feature, "a condition's feature"))
         object.__setattr__(self, "threshold", _finite(self.threshold))
         if self.form is not None:
             if not isinstance(self.form, LinearForm):
-                raise ValueError(f"a condition's form must be a LinearForm, got {self.form!r}")
+                raise ValueError(f"a condition's form must be a LinearForm, got {self.form!r:.60}")
             if self.feature != self.form.i:
                 raise ValueError(f"a relational condition's feature is its form's first "
                                  f"feature {self.form.i}, got {self.feature}; build it with "
@@ -327,12 +327,12 @@ class BehaviorTree:
                              f"{type(doc).__name__}")
         missing = [key for key in ("feature_names", "action_names", "root") if key not in doc]
         if missing:
-            raise ValueError(f"behavior-tree JSON lacks the key {missing[0]!r}; expected "
+            raise ValueError(f"behavior-tree JSON lacks the key {missing[0]!r:.60}; expected "
                              "feature_names, action_names and root")
         unknown = sorted(set(doc) - DOCUMENT_KEYS)
         if unknown:
-            raise ValueError(f"unknown key {unknown[0]!r} in a behavior-tree document; expected "
-                             f"{', '.join(sorted(DOCUMENT_KEYS))}")
+            raise ValueError(f"unknown key {unknown[0]!r:.60} in a behavior-tree document; "
+                             f"expected {', '.join(sorted(DOCUMENT_KEYS))}")
         if doc.get("format", FORMAT) != FORMAT:
             raise ValueError(f"format {doc['format']!r:.60} is not {FORMAT!r}, the one this "
                              "version reads")
@@ -347,9 +347,9 @@ class BehaviorTree:
         labels = []
         for feature, values in labels_doc.items():
             if feature not in names:
-                raise ValueError(f"value_labels names the feature {feature!r}, which is not in "
+                raise ValueError(f"value_labels names the feature {feature!r:.60}, which is not in "
                                  "feature_names")
-            labels.append((names.index(feature), _names(values, f"value_labels[{feature!r}]")))
+            labels.append((names.index(feature), _names(values, f"value_labels[{feature!r:.60}]")))
         action_names = _names(doc["action_names"], "action_names")
         commands = (Commands.from_dict(doc["commands"], len(action_names))
                     if "commands" in doc else None)
@@ -440,7 +440,7 @@ def _names(values: Any, what: str) -> tuple[str, ...]:
         raise ValueError(f"{what} must be a non-empty list of non-empty strings")
     if len(set(values)) != len(values):
         repeated = next(v for v in values if values.count(v) > 1)
-        raise ValueError(f"{what} names {repeated!r} twice")
+        raise ValueError(f"{what} names {repeated!r:.60} twice")
     return tuple(values)
 
 
@@ -523,8 +523,8 @@ def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
     if not isinstance(doc, dict):
         raise ValueError(f"{where}: a node is a JSON object, got {type(doc).__name__}")
     kind = doc.get("type")
-    if kind not in _NODE_KEYS:
-        raise ValueError(f"{where}: unknown node type {kind!r}; expected one of "
+    if not isinstance(kind, str) or kind not in _NODE_KEYS:
+        raise ValueError(f"{where}: unknown node type {kind!r:.60}; expected one of "
                          f"{', '.join(NODE_TYPES)}")
     keys = _NODE_KEYS[kind]
     if kind == "condition" and "form" in doc:
@@ -533,8 +533,8 @@ def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
                              " or 'form' (a relational test), not both")
         keys = _RELATIONAL_KEYS
     if set(doc) != keys:
-        problem = (f"lacks {sorted(keys - set(doc))[0]!r}" if keys - set(doc)
-                   else f"has the unknown key {sorted(set(doc) - keys)[0]!r}")
+        problem = (f"lacks {sorted(keys - set(doc))[0]!r:.60}" if keys - set(doc)
+                   else f"has the unknown key {sorted(set(doc) - keys)[0]!r:.60}")
         raise ValueError(f"{where}: a {kind} node {problem}; its keys are "
                          f"{', '.join(sorted(keys))}")
     try:
