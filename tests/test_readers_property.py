@@ -34,6 +34,7 @@ from ibt.bt.model import BehaviorTree
 from ibt.cli import main
 from ibt.distill.loop import tree_signature
 from ibt.distill.relational import fit_relational_tree
+from ibt.distill.tree_codec import from_document
 from ibt.distill.tree_file import load_tree_file, save_tree_file
 from ibt.synth.imitation import imitation_bt
 from ibt.tasks.catalogue import get_task
@@ -318,3 +319,119 @@ def test_the_bt_commands_refuse_hostile_numbers_and_keys(text, words, tmp_path, 
 def test_a_saved_bt_reads_back_through_the_strict_reader(tmp_path):
     bt = BehaviorTree.from_dict(BT_DOCS["relational"])
     assert load_json(save_json(bt, tmp_path / "bt.json")) == bt
+
+
+# ------------------------------------------------ the hostile cases, one by one (docs table)
+def _estimator(doc: dict) -> dict:
+    value = doc["tree"]["value"]
+    return value.get("__sklearn_tree__") or value["__sklearn_relational_tree__"]
+
+
+def _set_array(doc: dict, field: str, at: int, value: float) -> None:
+    """Element ``at`` of a node field (or of ``values``, flattened) of the tree's arrays."""
+    state = _estimator(doc)["tree_"]["__sklearn_Tree__"]["state"]
+    ref = state["values"] if field == "values" else state["nodes"]["fields"][field]
+    pool, offset, _ = ref["__array__"]
+    pools = _pools(doc)
+    pools[pool][offset + at] = value
+    doc["tree"]["arrays"][pool] = base64.b64encode(pools[pool].tobytes()).decode("ascii")
+
+
+def _first_leaf(doc: dict) -> int:
+    tree = from_document(doc["tree"])
+    return int(np.flatnonzero(tree.tree_.children_left == -1)[0])
+
+
+def _form(doc: dict) -> dict:
+    return _estimator(doc)["feature_map_"]["forms"][0]
+
+
+#: hostile tree files: (case, base file, how to spoil its JSON document, words of the refusal)
+HOSTILE_TREES = [
+    ("nan_threshold", "plain", lambda d: _set_array(d, "threshold", 0, math.nan),
+     "node 0 has the threshold nan"),
+    ("infinite_threshold", "plain", lambda d: _set_array(d, "threshold", 0, -math.inf),
+     "node 0 has the threshold -inf"),
+    ("threshold_beyond_float32", "plain", lambda d: _set_array(d, "threshold", 0, 1e300),
+     "beyond the float32 range"),
+    ("nan_impurity", "plain", lambda d: _set_array(d, "impurity", 1, math.nan),
+     "node 1 has the impurity nan"),
+    ("infinite_sample_weight", "plain",
+     lambda d: _set_array(d, "weighted_n_node_samples", 2, math.inf),
+     "node 2 has the weighted n node samples inf"),
+    ("infinite_class_value", "plain", lambda d: _set_array(d, "values", 6, math.inf),
+     "node 3 has a class value that is not finite"),
+    ("node_with_two_parents", "plain", lambda d: _set_array(d, "right_child", 0, 1),
+     "has two parents"),
+    ("leaf_that_tests_a_feature", "plain",
+     lambda d: _set_array(d, "feature", _first_leaf(d), 0), "is a leaf but has a feature"),
+    ("attribute_shadowing_predict", "plain", lambda d: _estimator(d).__setitem__("predict", 1),
+     "unknown attribute 'predict'"),
+    ("missing_fitted_attribute", "plain", lambda d: _estimator(d).pop("n_outputs_"),
+     "lacks 'n_outputs_'"),
+    ("invalid_parameter", "plain", lambda d: _estimator(d).__setitem__("criterion", "x"),
+     "'criterion' parameter"),
+    ("class_count_disagrees", "plain", lambda d: _estimator(d).__setitem__("n_classes_", 3),
+     "n_classes_"),
+    ("relational_nan_threshold", "relational", lambda d: _set_array(d, "threshold", 0, math.nan),
+     "node 0 has the threshold nan"),
+    ("relational_weight_too_large", "relational",
+     lambda d: _form(d).__setitem__("weights", [1e308, -1.0]), "are too large"),
+    ("relational_infinite_weight_text", "relational",
+     lambda d: _form(d).__setitem__("weights", [10**400, -1.0]), "must be finite and non-zero"),
+    ("relational_fractional_width", "relational",
+     lambda d: _estimator(d)["feature_map_"].__setitem__("n_features", 4.5),
+     "n_features must be a non-negative integer"),
+]
+
+
+@pytest.mark.parametrize(("case", "base", "spoil", "words"), HOSTILE_TREES,
+                         ids=[case[0] for case in HOSTILE_TREES])
+def test_a_hostile_tree_file_is_refused_by_name(case, base, spoil, words, tree_files, tmp_path,
+                                                capsys):
+    doc = json.loads(tree_files[base].read_text())
+    spoil(doc)
+    bad = tmp_path / f"{case}.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(ValueError) as refused:
+        load_tree_file(bad)
+    assert words in str(refused.value) and str(bad) in str(refused.value)
+    assert main(["synthesize", str(bad), "-o", str(tmp_path / "bt.json")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and words in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [bad.name]
+
+
+def _spoil_bt(change: Any) -> bytes:
+    doc = json.loads(json.dumps(BT_DOCS["cartpole"]))
+    change(doc)
+    return json.dumps(doc).encode()
+
+
+#: hostile BT files beyond those of tests/test_bad_input.py: (case, file bytes, words)
+HOSTILE_BTS = [
+    ("other_tick_rule", _spoil_bt(lambda d: d.__setitem__("tick_rule", "x op threshold")),
+     "tick_rule is not the rule this version ticks by"),
+    ("node_type_a_list", _spoil_bt(lambda d: d["root"].__setitem__("type", ["selector"])),
+     "unknown node type"),
+    ("key_of_5000_digits", _spoil_bt(lambda d: d.__setitem__("9" * 5000, 1)),
+     "unknown key '99999"),
+    ("nested_100000_levels", b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
+    ("truncated", json.dumps(BT_DOCS["cartpole"]).encode()[:-40], "not strict JSON"),
+    ("not_utf8", b'{"feature_names": ["\xff"]}', "not strict JSON"),
+]
+
+
+@pytest.mark.parametrize(("case", "data", "words"), HOSTILE_BTS,
+                         ids=[case[0] for case in HOSTILE_BTS])
+def test_a_hostile_bt_file_is_refused_by_name(case, data, words, tmp_path, capsys):
+    bad = tmp_path / f"{case}.json"
+    bad.write_bytes(data)
+    with pytest.raises(ValueError) as refused:
+        load_json(bad)
+    message = str(refused.value)
+    assert words in message and str(bad) in message and len(message) < MAX_MESSAGE
+    assert main(["export", str(bad), "--format", "dot", "-o", str(tmp_path / "bt.dot")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and words in err and len(err) < MAX_MESSAGE, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [bad.name]
