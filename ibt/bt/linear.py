@@ -66,9 +66,11 @@ class LinearForm:
                 number = float(value)
             except OverflowError:  # an integer beyond the double range
                 number = math.inf
+            if isinstance(value, int | np.integer) and number != int(value):
+                number = math.inf  # an integer a double does not hold: not read exactly
             if not math.isfinite(number) or number == 0:
-                raise ValueError(f"a linear form's weight {name} must be finite and non-zero, "
-                                 f"got {value!r:.60}")
+                raise ValueError(f"a linear form's weight {name} must be finite and non-zero "
+                                 f"(a number a double holds exactly), got {value!r:.60}")
             object.__setattr__(self, name, number)
 
     def value(self, features: np.ndarray) -> np.ndarray:

@@ -130,18 +130,22 @@ def _finite(value: Any) -> float:
         raise ValueError(f"a condition's threshold must be a number, got {value!r:.60}")
     number = finite_number(value)
     if number is None:
-        raise ValueError(f"a condition's threshold must be finite, got {value!r:.60}")
+        raise ValueError(f"a condition's threshold must be finite (a number a double holds "
+                         f"exactly), got {value!r:.60}")
     return number
 
 
 def finite_number(value: Any) -> float | None:
-    """``value`` (a JSON number) as a finite double, or ``None`` when it is not one (NaN,
-    infinity, an integer beyond the double range, not a number at all)."""
+    """``value`` (a JSON number) as a finite double, or ``None`` when it is not exactly one
+    (NaN, infinity, not a number at all, or an integer a double does not hold exactly, such as
+    ``10**30``: read as a double it would silently become another number)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         return None
     try:
         number = float(value)
     except OverflowError:
+        return None
+    if isinstance(value, int | np.integer) and number != int(value):
         return None
     return number if math.isfinite(number) else None
 
@@ -227,8 +231,8 @@ class Commands:
                 raise ValueError(f"command {i} must be a list of {len(dims)} numbers")
             bad = [v for v in row if finite_number(v) is None]
             if bad:
-                raise ValueError(f"command {i} holds {bad[0]!r:.60}, not a finite number; "
-                                 "give every command finite values")
+                raise ValueError(f"command {i} holds {bad[0]!r:.60}, not a finite number (one "
+                                 "a double holds exactly); give every command finite values")
             rows.append(tuple(float(v) for v in row))
         return cls(dims, tuple(units), tuple(rows))
 
