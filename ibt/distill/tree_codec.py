@@ -372,9 +372,10 @@ def check_tree(model: Any) -> None:
     if fmap is not None and getattr(fmap, "width", None) != n_features:
         raise PlainDataError(f"the relational tree reads {n_features} columns, its feature "
                              "map defines a different number")
-    for k, form in enumerate(getattr(fmap, "forms", ())):
+    forms = () if fmap is None else fmap.forms
+    for k, form in enumerate(forms):
         if not math.isfinite(_FLOAT32_MAX * (abs(form.w1) + abs(form.w2))):
-            raise PlainDataError(f"the weights of derived column {fmap.n_features + k} "
+            raise PlainDataError(f"the weights of derived column {n_features - len(forms) + k} "
                                  f"({form.w1!r}, {form.w2!r}) are too large: a linear form must "
                                  "stay finite on every float32 observation")
 
