@@ -290,6 +290,7 @@ def test_every_command_refuses_a_non_finite_threshold_naming_file_and_node(
 
 @pytest.mark.parametrize(("text", "words"), [
     ('"threshold": 10' + "0" * 400, "threshold must be finite"),
+    ('"threshold": 1' + "0" * 30, "threshold must be finite"),  # no double is exactly 10**30
     ('"threshold": 1e999', "threshold must be finite"),
     ('"threshold": NaN', "threshold must be finite"),
     ('"op": "<=", "op": ">"', "duplicate key 'op'"),
