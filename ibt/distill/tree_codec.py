@@ -21,8 +21,9 @@ field). ``__tree_arrays__`` is reserved for :mod:`ibt.runs.payloads`. The round 
 
 :func:`to_document` / :func:`from_document` make any such value one self-contained JSON
 document (pools as base64 of little-endian bytes); :func:`tree_to_data` / :func:`tree_from_data`
-do so for one fitted tree, whose structure :func:`check_tree` checks on reading (no cycle, every
-index in range), so a hostile file cannot make ``predict`` loop or read out of bounds.
+do so for one fitted tree, which :func:`check_tree` checks on reading (exactly a fitted tree's
+attributes, a tree of nodes with one parent each, every index in range, every number finite), so
+a hostile file cannot make ``predict`` loop, read out of bounds or decide on NaN.
 """
 
 from __future__ import annotations
