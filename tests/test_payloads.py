@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import types
 import warnings
@@ -27,6 +26,7 @@ from ibt.refine.tree_arrays import TreeArrays
 from ibt.runs import cache, cache_admin, payloads
 from ibt.runs.cache import CacheWarning, cache_key, load_or_compute
 from ibt.runs.payloads import CODECS, PayloadError, difference
+from tests.privileges import run_unprivileged
 
 
 @pytest.fixture
@@ -311,8 +311,26 @@ def test_an_unwritable_cache_returns_the_value_without_writing(tmp_path, demo, m
     _assert_not_written(tmp_path, before)
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes to read-only folders anyway")
+#: the two lookups of a read-only cache, run as a user who meets permission bits
+READ_ONLY_LOOKUPS = """
+import sys, warnings
+from pathlib import Path
+from ibt.runs import cache
+from ibt.runs.cache import CacheWarning
+from tests.test_payloads import _lookup, _run
+cache.CODE_VERSIONS["demo"] = 1
+root, calls = Path(sys.argv[1]), []
+_lookup(root, {"a": 1}, None, calls)  # stored: read, not computed
+with warnings.catch_warnings(record=True) as record:
+    warnings.simplefilter("always")
+    assert _lookup(root, {"a": 2}, _run(1), calls).seed == 1
+assert len(calls) == 1, calls
+print(*[w.message for w in record if issubclass(w.category, CacheWarning)], sep="\\n")
+"""
+
+
 def test_a_read_only_cache_folder_returns_the_value(tmp_path, demo):
+    """Run without root's permission override (CI runs as root, which writes anyway)."""
     calls: list[int] = []
     _lookup(tmp_path, {"a": 1}, _run(0), calls)
     before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
@@ -320,9 +338,9 @@ def test_a_read_only_cache_folder_returns_the_value(tmp_path, demo):
     for folder in folders:
         folder.chmod(0o555)
     try:
-        _lookup(tmp_path, {"a": 1}, None, calls)
-        with pytest.warns(CacheWarning, match="not stored"):
-            assert _lookup(tmp_path, {"a": 2}, _run(1), calls).seed == 1
+        done = run_unprivileged([sys.executable, "-c", READ_ONLY_LOOKUPS, str(tmp_path)])
+        assert done.returncode == 0, done.stderr
+        assert "not stored" in done.stdout and len(done.stdout.splitlines()) == 1, done.stdout
         _assert_not_written(tmp_path, before)
     finally:
         for folder in folders:

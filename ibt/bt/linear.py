@@ -53,7 +53,7 @@ class LinearForm:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
                 raise ValueError(f"a linear form's feature {name} must be a non-negative "
-                                 f"integer index, got {value!r}")
+                                 f"integer index, got {value!r:.60}")
             object.__setattr__(self, name, int(value))
         if self.i == self.j:
             raise ValueError(f"a linear form needs two different features, got {self.i} twice")
@@ -62,18 +62,21 @@ class LinearForm:
             if isinstance(value, bool) or not isinstance(value, int | float | np.integer
                                                          | np.floating):
                 raise ValueError(f"a linear form's weight {name} must be a number, "
-                                 f"got {value!r}")
+                                 f"got {value!r:.60}")
             try:
-                magnitude = abs(float(value))
-            except OverflowError:
-                magnitude = math.inf
+                number = float(value)
+            except OverflowError:  # an integer beyond the double range
+                number = math.inf
+            if isinstance(value, int | np.integer) and number != int(value):
+                number = math.inf  # an integer a double does not hold: not read exactly
             # one rule wherever a BT is read, run or exported: BehaviorTree.CPP's number parser
             # rejects subnormal doubles, so a weight must be a normal double
-            if not sys.float_info.min <= magnitude < math.inf:
+            if not sys.float_info.min <= abs(number) < math.inf:
                 raise ValueError(f"a linear form's weight {name} must be finite and non-zero, "
                                  f"and not subnormal (at least {sys.float_info.min:.4g} in "
-                                 f"magnitude), got {value!r:.40}")
-            object.__setattr__(self, name, float(value))
+                                 "magnitude; a number a double holds exactly), got "
+                                 f"{value!r:.60}")
+            object.__setattr__(self, name, number)
 
     def value(self, features: np.ndarray) -> np.ndarray:
         """The form on rows of *already widened* features (float32 values as doubles)."""
@@ -97,11 +100,11 @@ class LinearForm:
     def from_json(cls, doc: Any) -> LinearForm:
         if not isinstance(doc, dict) or set(doc) != {"features", "weights"}:
             raise ValueError("a linear form must be {\"features\": [i, j], \"weights\": [w1, w2]}"
-                             f", got {doc!r}")
+                             f", got {doc!r:.80}")
         features, weights = doc["features"], doc["weights"]
         if not (isinstance(features, list) and isinstance(weights, list)
                 and len(features) == 2 and len(weights) == 2):
-            raise ValueError(f"a linear form has two features and two weights, got {doc!r}")
+            raise ValueError(f"a linear form has two features and two weights, got {doc!r:.80}")
         return cls(features[0], features[1], weights[0], weights[1])
 
 
@@ -160,8 +163,15 @@ class FeatureMap:
     @classmethod
     def from_json(cls, doc: Any) -> FeatureMap:
         if not isinstance(doc, dict) or set(doc) != {"n_features", "forms"}:
-            raise ValueError(f"a feature map must be {{\"n_features\", \"forms\"}}, got {doc!r}")
-        return cls(int(doc["n_features"]), tuple(LinearForm.from_json(f) for f in doc["forms"]))
+            raise ValueError(f"a feature map must be {{\"n_features\", \"forms\"}}, got "
+                             f"{doc!r:.80}")
+        n_features, forms = doc["n_features"], doc["forms"]
+        if type(n_features) is not int or n_features < 0:
+            raise ValueError(f"a feature map's n_features must be a non-negative integer, got "
+                             f"{n_features!r:.60}")
+        if not isinstance(forms, list):
+            raise ValueError(f"a feature map's forms must be a list, got {forms!r:.60}")
+        return cls(n_features, tuple(LinearForm.from_json(f) for f in forms))
 
     @classmethod
     def pairs(cls, n_features: int, weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS,

@@ -59,13 +59,13 @@ class Condition:
 
     def __post_init__(self) -> None:
         if self.op not in OPS:
-            raise ValueError(f"condition op must be one of {OPS}, got {self.op!r}")
+            raise ValueError(f"condition op must be one of {OPS}, got {self.op!r:.60}")
         # normalised to plain int/float: NumPy scalars from scikit-learn compare equal anyway
         object.__setattr__(self, "feature", _index(self.feature, "a condition's feature"))
         object.__setattr__(self, "threshold", _finite(self.threshold))
         if self.form is not None:
             if not isinstance(self.form, LinearForm):
-                raise ValueError(f"a condition's form must be a LinearForm, got {self.form!r}")
+                raise ValueError(f"a condition's form must be a LinearForm, got {self.form!r:.60}")
             if self.feature != self.form.i:
                 raise ValueError(f"a relational condition's feature is its form's first "
                                  f"feature {self.form.i}, got {self.feature}; build it with "
@@ -117,27 +117,37 @@ class Action:
 def _index(value: Any, what: str) -> int:
     """``value`` as a non-negative integer index, or a ``ValueError`` naming ``what``."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise ValueError(f"{what} must be an integer index, got {value!r}")
+        raise ValueError(f"{what} must be an integer index, got {value!r:.60}")
     if value < 0:
-        raise ValueError(f"{what} must be a non-negative index, got {value!r}")
+        raise ValueError(f"{what} must be a non-negative index, got {value!r:.60}")
     return int(value)
 
 
 def _finite(value: Any) -> float:
-    """``value`` as a finite float, or a ``ValueError``."""
+    """``value`` as a finite float, or a ``ValueError`` (an integer too large for a double
+    included: it would be infinite)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"a condition's threshold must be a number, got {value!r}")
-    if not math.isfinite(_as_float(value)):
-        raise ValueError(f"a condition's threshold must be finite, got {value!r:.40}")
-    return float(value)
+        raise ValueError(f"a condition's threshold must be a number, got {value!r:.60}")
+    number = finite_number(value)
+    if number is None:
+        raise ValueError(f"a condition's threshold must be finite (a number a double holds "
+                         f"exactly), got {value!r:.60}")
+    return number
 
 
-def _as_float(value: Any) -> float:
-    """``float(value)``; an integer too large for a double is infinite (no OverflowError)."""
+def finite_number(value: Any) -> float | None:
+    """``value`` (a JSON number) as a finite double, or ``None`` when it is not exactly one
+    (NaN, infinity, not a number at all, or an integer a double does not hold exactly, such as
+    ``10**30``: read as a double it would silently become another number)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        return None
     try:
-        return float(value)
+        number = float(value)
     except OverflowError:
-        return math.inf
+        return None
+    if isinstance(value, int | np.integer) and number != int(value):
+        return None
+    return number if math.isfinite(number) else None
 
 
 @dataclass(frozen=True)
@@ -219,12 +229,11 @@ class Commands:
         for i, row in enumerate(values):
             if not isinstance(row, list) or len(row) != len(dims):
                 raise ValueError(f"command {i} must be a list of {len(dims)} numbers")
-            bad = [v for v in row if isinstance(v, bool) or not isinstance(v, int | float)
-                   or not abs(_as_float(v)) <= FLOAT32_MAX]
+            bad = [v for v in row if finite_number(v) is None or abs(float(v)) > FLOAT32_MAX]
             if bad:  # commands are sent as float32: the same rule as observations
-                raise ValueError(f"command {i} holds {bad[0]!r:.40}, not a finite number "
-                                 f"that fits in float32 (at most {FLOAT32_MAX:.8g} in "
-                                 "magnitude); give every command such values")
+                raise ValueError(f"command {i} holds {bad[0]!r:.60}, not a finite number that "
+                                 f"fits in float32 (at most {FLOAT32_MAX:.8g} in magnitude; one "
+                                 "a double holds exactly); give every command such values")
             rows.append(tuple(float(v) for v in row))
         return cls(dims, tuple(units), tuple(rows))
 
@@ -323,15 +332,19 @@ class BehaviorTree:
                              f"{type(doc).__name__}")
         missing = [key for key in ("feature_names", "action_names", "root") if key not in doc]
         if missing:
-            raise ValueError(f"behavior-tree JSON lacks the key {missing[0]!r}; expected "
+            raise ValueError(f"behavior-tree JSON lacks the key {missing[0]!r:.60}; expected "
                              "feature_names, action_names and root")
         unknown = sorted(set(doc) - DOCUMENT_KEYS)
         if unknown:
-            raise ValueError(f"unknown key {unknown[0]!r} in a behavior-tree document; expected "
-                             f"{', '.join(sorted(DOCUMENT_KEYS))}")
+            raise ValueError(f"unknown key {unknown[0]!r:.60} in a behavior-tree document; "
+                             f"expected {', '.join(sorted(DOCUMENT_KEYS))}")
         if doc.get("format", FORMAT) != FORMAT:
-            raise ValueError(f"format {doc['format']!r} is not {FORMAT!r}, the one this version "
-                             "reads")
+            raise ValueError(f"format {doc['format']!r:.60} is not {FORMAT!r}, the one this "
+                             "version reads")
+        if doc.get("tick_rule", TICK_RULE) not in (TICK_RULE, TICK_RULE + RELATIONAL_TICK_RULE):
+            raise ValueError("its tick_rule is not the rule this version ticks by (a BT "
+                             "written for other semantics would not decide as its author meant);"
+                             " remove the key or write the BT with this version")
         names = _names(doc["feature_names"], "feature_names")
         labels_doc = doc.get("value_labels", {})
         if not isinstance(labels_doc, dict):
@@ -339,9 +352,9 @@ class BehaviorTree:
         labels = []
         for feature, values in labels_doc.items():
             if feature not in names:
-                raise ValueError(f"value_labels names the feature {feature!r}, which is not in "
+                raise ValueError(f"value_labels names the feature {feature!r:.60}, which is not in "
                                  "feature_names")
-            labels.append((names.index(feature), _names(values, f"value_labels[{feature!r}]")))
+            labels.append((names.index(feature), _names(values, f"value_labels[{feature!r:.60}]")))
         action_names = _names(doc["action_names"], "action_names")
         commands = (Commands.from_dict(doc["commands"], len(action_names))
                     if "commands" in doc else None)
@@ -351,12 +364,10 @@ class BehaviorTree:
         return tree
 
     @classmethod
-    def from_json(cls, text: str) -> BehaviorTree:
-        try:
-            doc = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ValueError(f"not JSON ({err})") from None
-        return cls.from_dict(doc)
+    def from_json(cls, text: str | bytes) -> BehaviorTree:
+        """Read a BT document from strict JSON (UTF-8, no duplicate keys: a key given twice
+        would silently mean its last value): ``ValueError`` names the first problem."""
+        return cls.from_dict(strict_json(text))
 
     def validate(self) -> None:
         """Raise ``ValueError`` unless every feature and action index is in range, every
@@ -404,6 +415,29 @@ DOCUMENT_KEYS = frozenset({"format", "feature_names", "action_names", "tick_rule
                            "value_labels", "commands", "root"})
 
 
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise ValueError(f"duplicate key {key!r:.60}")
+        doc[key] = value
+    return doc
+
+
+def strict_json(text: str | bytes) -> Any:
+    """The JSON value of ``text``; ``ValueError`` if it is not UTF-8, not JSON, has a duplicate
+    key or is nested too deeply for the parser (NaN literals are read: the reader of the value
+    says which field must be finite)."""
+    try:
+        if isinstance(text, bytes):
+            text = text.decode("utf-8")
+        return json.loads(text, object_pairs_hook=_no_duplicates)
+    except RecursionError:
+        raise ValueError("nested too deeply to be a behavior tree") from None
+    except ValueError as err:  # JSONDecodeError, UnicodeDecodeError, duplicate keys
+        raise ValueError(f"not strict JSON ({' '.join(str(err).split())})") from None
+
+
 def _names(values: Any, what: str) -> tuple[str, ...]:
     """A non-empty list of distinct non-empty strings, as a tuple."""
     if (not isinstance(values, list) or not values
@@ -411,7 +445,7 @@ def _names(values: Any, what: str) -> tuple[str, ...]:
         raise ValueError(f"{what} must be a non-empty list of non-empty strings")
     if len(set(values)) != len(values):
         repeated = next(v for v in values if values.count(v) > 1)
-        raise ValueError(f"{what} names {repeated!r} twice")
+        raise ValueError(f"{what} names {repeated!r:.60} twice")
     return tuple(values)
 
 
@@ -494,8 +528,8 @@ def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
     if not isinstance(doc, dict):
         raise ValueError(f"{where}: a node is a JSON object, got {type(doc).__name__}")
     kind = doc.get("type")
-    if kind not in _NODE_KEYS:
-        raise ValueError(f"{where}: unknown node type {kind!r}; expected one of "
+    if not isinstance(kind, str) or kind not in _NODE_KEYS:
+        raise ValueError(f"{where}: unknown node type {kind!r:.60}; expected one of "
                          f"{', '.join(NODE_TYPES)}")
     keys = _NODE_KEYS[kind]
     if kind == "condition" and "form" in doc:
@@ -504,8 +538,8 @@ def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
                              " or 'form' (a relational test), not both")
         keys = _RELATIONAL_KEYS
     if set(doc) != keys:
-        problem = (f"lacks {sorted(keys - set(doc))[0]!r}" if keys - set(doc)
-                   else f"has the unknown key {sorted(set(doc) - keys)[0]!r}")
+        problem = (f"lacks {sorted(keys - set(doc))[0]!r:.60}" if keys - set(doc)
+                   else f"has the unknown key {sorted(set(doc) - keys)[0]!r:.60}")
         raise ValueError(f"{where}: a {kind} node {problem}; its keys are "
                          f"{', '.join(sorted(keys))}")
     try:

@@ -21,8 +21,9 @@ field). ``__tree_arrays__`` is reserved for :mod:`ibt.runs.payloads`. The round 
 
 :func:`to_document` / :func:`from_document` make any such value one self-contained JSON
 document (pools as base64 of little-endian bytes); :func:`tree_to_data` / :func:`tree_from_data`
-do so for one fitted tree, whose structure :func:`check_tree` checks on reading (no cycle, every
-index in range), so a hostile file cannot make ``predict`` loop or read out of bounds.
+do so for one fitted tree, which :func:`check_tree` checks on reading (exactly a fitted tree's
+attributes, a tree of nodes with one parent each, every index in range, every number finite), so
+a hostile file cannot make ``predict`` loop, read out of bounds or decide on NaN.
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ class PlainDecoder:
             raise PlainDataError(f"expected an array reference, got {doc!r:.60}")
         pool, offset, shape = ref
         if self.arrays is None or pool not in self.arrays or self.arrays[pool].ndim != 1:
-            raise PlainDataError(f"no array pool {pool!r} in the payload")
+            raise PlainDataError(f"no array pool {pool!r:.60} in the payload")
         size = math.prod(shape)
         if offset < 0 or offset + size > len(self.arrays[pool]):
             raise PlainDataError(f"array reference {ref} lies outside its pool")
@@ -163,12 +164,12 @@ class PlainDecoder:
             return tuple(self.decode(v) for v in body)
         if tag == "__float__":
             if body not in ("nan", "inf", "-inf"):
-                raise PlainDataError(f"unknown float {body!r}")
+                raise PlainDataError(f"unknown float {body!r:.60}")
             return float(body)
         if tag == "__numpy__":
             dtype = np.dtype(body)
             if dtype.kind not in _SCALAR_KINDS:
-                raise PlainDataError(f"unexpected NumPy scalar dtype {body!r}")
+                raise PlainDataError(f"unexpected NumPy scalar dtype {body!r:.60}")
             return dtype.type(self.decode(doc["value"]))
         if tag == "__items__":
             return {self.decode(k): self.decode(v) for k, v in body}
@@ -203,7 +204,7 @@ class PlainDecoder:
 
     def decode_other(self, tag: str, body: Any) -> Any:
         """The value of a reserved tag this codec does not build (subclasses add types)."""
-        raise PlainDataError(f"unexpected tag {tag!r} here")
+        raise PlainDataError(f"unexpected tag {tag!r:.60} here")
 
     def _tree(self, body: dict[str, Any]) -> Any:
         from sklearn.tree._tree import NODE_DTYPE, Tree
@@ -211,8 +212,8 @@ class PlainDecoder:
         state = dict(body["state"])
         columns = state["nodes"]["fields"]
         if list(columns) != list(NODE_DTYPE.names):
-            raise PlainDataError(f"tree node fields {list(columns)} are not scikit-learn's "
-                               f"{list(NODE_DTYPE.names)}")
+            raise PlainDataError(f"tree node fields {list(columns)!r:.60} are not "
+                                 f"scikit-learn's {list(NODE_DTYPE.names)}")
         count = len(self.array(columns[NODE_DTYPE.names[0]]))
         nodes = np.zeros(count, dtype=NODE_DTYPE)
         for name, ref in columns.items():
@@ -249,13 +250,13 @@ def from_document(data: Any) -> Any:
     arrays = {}
     for name, text in data["arrays"].items():
         if name not in _POOL_DTYPES or not isinstance(text, str):
-            raise PlainDataError(f"unknown array pool {name!r}")
+            raise PlainDataError(f"unknown array pool {name!r:.60}")
         dtype = np.dtype(_POOL_DTYPES[name])
         try:
             raw = base64.b64decode(text.encode("ascii"), validate=True)
             arrays[name] = np.frombuffer(raw, dtype=dtype).astype(dtype.newbyteorder("="))
         except ValueError as err:
-            raise PlainDataError(f"array pool {name!r} is not base64 of {name} values "
+            raise PlainDataError(f"array pool {name!r:.60} is not base64 of {name} values "
                                  f"({err})") from None
     try:
         return PlainDecoder(arrays).decode(data["value"])
@@ -291,8 +292,46 @@ def tree_from_data(data: Any) -> Any:
     return model
 
 
+_FITTED = ("n_features_in_", "n_outputs_", "classes_", "n_classes_", "max_features_", "tree_")
+
+
+def _integer(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+
+
+def _check_estimator(model: Any) -> None:
+    """:class:`PlainDataError` unless ``model``'s attributes are exactly a fitted single-output
+    classifier's: its parameters valid, no attribute that is not one of scikit-learn's (a file
+    could otherwise shadow a method such as ``predict``), the fitted ones of the right types."""
+    from sklearn.tree import DecisionTreeClassifier
+
+    params = set(DecisionTreeClassifier().get_params())
+    extra = {_FEATURE_MAP} if _FEATURE_MAP in vars(model) else set()
+    missing = sorted((params | set(_FITTED)) - set(vars(model)))
+    unknown = sorted(set(vars(model)) - params - set(_FITTED) - extra)
+    if missing or unknown:
+        problem = (f"lacks {missing[0]!r}" if missing
+                   else f"has the unknown attribute {unknown[0]!r:.60}")
+        raise PlainDataError(f"the decision tree {problem}")
+    try:
+        model._validate_params()
+    except ValueError as err:
+        raise PlainDataError(f"{' '.join(str(err).split())[:200]}") from None
+    classes = model.classes_
+    if not (isinstance(classes, np.ndarray) and classes.ndim == 1 and classes.dtype.kind in "iu"
+            and len(classes) >= 1 and bool(np.all(np.diff(classes) > 0))):
+        raise PlainDataError("its classes_ are not increasing integers")
+    counts = [model.n_features_in_, model.n_outputs_, model.n_classes_, model.max_features_]
+    if not all(_integer(v) for v in counts) or model.n_outputs_ != 1 \
+            or model.n_classes_ != len(classes) \
+            or not 1 <= model.max_features_ <= model.n_features_in_:
+        raise PlainDataError("its n_features_in_, n_outputs_, n_classes_ or max_features_ "
+                             "are not the integers of a fitted single-output tree")
+
+
 def check_tree(model: Any) -> None:
     """:class:`PlainDataError` unless ``model``'s nodes form a tree that ``predict`` can walk."""
+    _check_estimator(model)
     try:
         t = model.tree_
         n, left, right = t.node_count, np.asarray(t.children_left), np.asarray(t.children_right)
@@ -308,11 +347,59 @@ def check_tree(model: Any) -> None:
           and bool(np.all((right[~leaf] > index[~leaf]) & (right[~leaf] < n)))
           and bool(np.all((feature[~leaf] >= 0) & (feature[~leaf] < n_features)))
           and int(t.n_features) == n_features and np.asarray(t.value).shape[0] == n
+          and int(t.n_outputs) == 1 and np.asarray(t.n_classes).tolist() == [len(classes)]
           and np.asarray(t.value).shape[-1] == len(classes) >= 1)
     if not ok:
         raise PlainDataError("its nodes do not form a decision tree (children before their "
                              "parent, out of range, or sizes that disagree)")
+    children = np.sort(np.concatenate([left[~leaf], right[~leaf]]))
+    if not np.array_equal(children, index[1:]):  # every node but the root has one parent
+        shared = children[np.flatnonzero(np.diff(children) == 0)]
+        which = (f"node {int(shared[0])} has two parents" if shared.size
+                 else "a node is reached from no parent")
+        raise PlainDataError(f"its nodes do not form a decision tree ({which})")
+    odd = np.flatnonzero(leaf & ((feature != _UNDEFINED) | (np.asarray(t.threshold)
+                                                            != _UNDEFINED)))
+    if odd.size:  # what every walker of the arrays takes for a leaf
+        raise PlainDataError(f"node {int(odd[0])} is a leaf but has a feature or threshold "
+                             f"(scikit-learn's leaves have {_UNDEFINED} for both)")
+    _check_finite(t)
     fmap = getattr(model, _FEATURE_MAP, None)
+    beyond = np.flatnonzero(~leaf & (np.abs(np.asarray(t.threshold)) > _FLOAT32_MAX))
+    if beyond.size:  # fitted on float32 features: a threshold is a midpoint of two of them
+        node = int(beyond[0])
+        raise PlainDataError(f"node {node} has the threshold {float(t.threshold[node])!r}, "
+                             "beyond the float32 range of the values it tests")
     if fmap is not None and getattr(fmap, "width", None) != n_features:
         raise PlainDataError(f"the relational tree reads {n_features} columns, its feature "
                              "map defines a different number")
+    forms = () if fmap is None else fmap.forms
+    for k, form in enumerate(forms):
+        if not math.isfinite(_FLOAT32_MAX * (abs(form.w1) + abs(form.w2))):
+            raise PlainDataError(f"the weights of derived column {n_features - len(forms) + k} "
+                                 f"({form.w1!r}, {form.w2!r}) are too large: a linear form must "
+                                 "stay finite on every float32 observation")
+
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_UNDEFINED = -2  # scikit-learn's TREE_UNDEFINED: the feature and threshold of a leaf
+_NODE_NUMBERS = ("threshold", "impurity", "weighted_n_node_samples")
+
+
+def _check_finite(t: Any) -> None:
+    """:class:`PlainDataError` naming the first node whose threshold, impurity, weight or
+    class values are not finite numbers (NaN and infinity decide nothing: a NaN threshold sends
+    every state right, so the tree would not decide as the tree that was fitted)."""
+    nodes = t.__getstate__()["nodes"]
+    values = np.asarray(t.value, dtype=np.float64).reshape(len(nodes), -1)
+    for name in _NODE_NUMBERS:
+        bad = np.flatnonzero(~np.isfinite(nodes[name]))
+        if bad.size:
+            node = int(bad[0])
+            raise PlainDataError(f"node {node} has the {name.replace('_', ' ')} "
+                                 f"{float(nodes[name][node])!r}; every number of a tree must be "
+                                 "finite")
+    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+    if bad.size:
+        raise PlainDataError(f"node {int(bad[0])} has a class value that is not finite "
+                             f"({values[bad[0]].tolist()}); every number of a tree must be finite")

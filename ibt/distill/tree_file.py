@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 from ibt.distill.tree_codec import (
     PlainDataError,
+    check_tree,
     from_document,
     to_document,
     tree_from_data,
@@ -90,7 +91,7 @@ def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     doc: dict[str, Any] = {}
     for key, value in pairs:
         if key in doc:
-            raise ValueError(f"duplicate key {key!r}")
+            raise ValueError(f"duplicate key {key!r:.60}")
         doc[key] = value
     return doc
 
@@ -181,7 +182,7 @@ def load_tree_file(path: str | Path, *, trust_pickle: bool = False) -> dict[str,
         raise TreeFileError(f"{not_ours} (no \"format\": \"{TREE_FORMAT}\")")
     if doc.get("format_version") != TREE_FORMAT_VERSION:
         raise TreeFileError(f"{path} is a tree file of format version "
-                            f"{doc.get('format_version')!r}; this version reads "
+                            f"{doc.get('format_version')!r:.60}; this version reads "
                             f"{TREE_FORMAT_VERSION}: distil it again")
     missing = [k for k in _KEYS if k not in doc]
     if missing:
@@ -216,12 +217,16 @@ def _load_pickle(path: Path) -> dict[str, Any]:
     if not isinstance(doc, dict) or any(k not in doc for k in keys):
         raise TreeFileError(not_ours)
     if doc.get("format", LEGACY_FORMAT) != LEGACY_FORMAT:
-        raise TreeFileError(f"{path} is a {doc['format']!r} file; expected {LEGACY_FORMAT}")
+        raise TreeFileError(f"{path} is a {doc['format']!r:.60} file; expected {LEGACY_FORMAT}")
     if type(doc["tree"]) is not DecisionTreeClassifier or not hasattr(doc["tree"], "tree_"):
         raise TreeFileError(f"{not_ours} (it holds no fitted decision tree)")
     doc = {**doc, "env_modules": list(doc.get("env_modules", [])),
            "gym_id": doc.get("gym_id", doc["task"])}
     _check_names(doc, path)
+    try:
+        check_tree(doc["tree"])
+    except PlainDataError as err:
+        raise TreeFileError(f"{path} holds no valid decision tree ({err})") from None
     _check_fit(doc, path)
     return doc
 
