@@ -9,7 +9,7 @@ export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 
 .DEFAULT_GOAL := help
-.PHONY: help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean
+.PHONY: help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -69,6 +69,12 @@ test: setup lint ## ruff + unit/property tests + every notebook under the smoke 
 
 test-slow: setup ## the slow tests too (training determinism, full-size runs)
 	$(BIN)/python -m pytest -q
+
+book: setup ## the HTML book (notebooks with their committed outputs, report, formats, CLI, API), offline
+	@start=$$(date +%s); $(BIN)/sphinx-build -q -W --keep-going -b html -c docs/book \
+		-d build/book/doctrees . build/book/html && \
+	echo "make book: $$(( $$(date +%s) - start )) s; open build/book/html/index.html" \
+		"(check it: $(BIN)/python -m ibt.book check build/book/html)"
 
 lab: setup ## open JupyterLab on the notebooks
 	$(BIN)/jupyter lab notebooks

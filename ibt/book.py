@@ -15,8 +15,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import pkgutil
+import re
 import shutil
 import sys
 from collections.abc import Iterable, Iterator
@@ -29,7 +29,7 @@ from urllib.parse import unquote, urlsplit
 from ibt.files import atomic_write_text
 
 if TYPE_CHECKING:
-    from selenium.webdriver.remote.webdriver import WebDriver
+    from selenium.webdriver.chrome.webdriver import WebDriver
 
 PACKAGE_ROOT = Path(__file__).resolve().parent
 #: modules the API reference leaves out: ``__main__`` runs the CLI when imported

@@ -18,7 +18,7 @@ from ibt.book import rebase_output_links, write_api_pages  # noqa: E402
 
 project = "Imitation-BT"
 author = "the Imitation-BT authors"
-copyright = "the Imitation-BT authors, MIT licence"  # noqa: A001
+copyright = "the Imitation-BT authors, MIT licence"
 
 extensions = [
     "myst_nb",
@@ -59,6 +59,7 @@ napoleon_google_docstring = True
 
 html_theme = "sphinx_book_theme"
 html_title = "Imitation-BT"
+smartquotes = False  # `--refresh` and "quotes" stay as typed
 html_last_updated_fmt = None
 html_copy_source = False
 html_show_sourcelink = False
@@ -77,7 +78,7 @@ def _api_pages(app: object) -> None:
     write_api_pages(ROOT / "docs" / "book" / "api")
 
 
-def _notebook_links(app, docname: str, source: list[str]) -> None:  # noqa: ANN001
+def _notebook_links(app, docname: str, source: list[str]) -> None:
     """Links in a notebook's Markdown outputs that were written from the repository's root,
     rebased onto the notebook's folder (see :func:`ibt.book.rebase_output_links`)."""
     path = Path(app.env.doc2path(docname))
@@ -99,13 +100,13 @@ REDIRECT = """<!DOCTYPE html>
 """
 
 
-def _front_door(app, exception: Exception | None) -> None:  # noqa: ANN001
+def _front_door(app, exception: Exception | None) -> None:
     """``index.html`` at the top of the book, which opens its front page (``docs/book/``)."""
     if exception is None and app.builder.format == "html":
         (Path(app.outdir) / "index.html").write_text(REDIRECT, encoding="utf-8")
 
 
-def setup(app):  # noqa: ANN001, ANN201 (Sphinx's extension hook)
+def setup(app):
     app.connect("builder-inited", _api_pages)
     app.connect("source-read", _notebook_links)
     app.connect("autodoc-skip-member", _foreign_member)
