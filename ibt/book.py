@@ -241,7 +241,7 @@ def check_pages(html_dir: str | Path, pages: Iterable[Path] | None = None) -> li
                 problems.append(Problem(name, "load", f"did not load ({driver.current_url})"))
                 continue
             ids[page] = set(seen["ids"])
-            problems += _page_problems(name, seen, anchors)
+            problems += _page_problems(root, name, seen, anchors)
             problems += [Problem(name, "console", entry["message"])
                          for entry in driver.get_log("browser") if entry["level"] == "SEVERE"]
         for name, target, fragment in anchors:
@@ -274,9 +274,10 @@ def _settled(driver: WebDriver, seconds: float = 10.0) -> dict[str, Any]:
     return dict(seen or {"ready": "timeout", "links": [], "images": [], "ids": []})
 
 
-def _page_problems(name: str, seen: dict[str, Any],
+def _page_problems(root: Path, name: str, seen: dict[str, Any],
                    anchors: list[tuple[str, Path, str]]) -> list[Problem]:
-    """Missing link targets and images of one page; anchors to check are appended."""
+    """Missing link targets and images of one page; anchors to check are appended. A file
+    outside the book counts as missing: the book is read without the repository beside it."""
     problems = []
     for url in dict.fromkeys(seen["links"]):
         local = _local_file(url)
@@ -284,14 +285,15 @@ def _page_problems(name: str, seen: dict[str, Any],
             continue
         path, fragment = local
         target = _target_page(path)
-        if not target.exists():
-            problems.append(Problem(name, "link", f"{url} points to no file"))
+        if not target.exists() or not target.resolve().is_relative_to(root):
+            problems.append(Problem(name, "link", f"{url} points to no file of the book"))
         elif fragment:
             anchors.append((name, target, fragment))
     for image in seen["images"]:
         local = _local_file(image["src"])
-        if local is not None and not local[0].is_file():
-            problems.append(Problem(name, "image", f"{image['src']} is not there"))
+        if local is not None and not (local[0].is_file()
+                                      and local[0].resolve().is_relative_to(root)):
+            problems.append(Problem(name, "image", f"{image['src']} is not in the book"))
         elif not image["complete"] or image["width"] == 0:
             problems.append(Problem(name, "image", f"{image['src']} did not show"))
     return problems
@@ -314,12 +316,20 @@ def _shown(path: Path, root: Path) -> str:
 
 def screenshot(html_dir: str | Path, page: str, output: str | Path, width: int = 1280,
                height: int = 900) -> Path:
-    """A PNG of one page of the built book as headless Chromium shows it (atomic write)."""
-    path = Path(html_dir).resolve() / page
+    """A PNG of one page of the built book as headless Chromium shows it (atomic write);
+    ``page#anchor`` scrolls to that anchor first."""
+    name, _, anchor = page.partition("#")
+    path = Path(html_dir).resolve() / name
     if not path.is_file():
         raise FileNotFoundError(f"{path} is not a page of the built book: run `make book` first")
+    if anchor and anchor not in _ids_on_disk(path):
+        raise FileNotFoundError(f"{name} has no anchor #{anchor}: pick one of its section ids")
     with headless_chromium(width, height) as driver:
         driver.get(path.as_uri())
+        _settled(driver)
+        if anchor:  # scrolled to, not navigated to: the theme would highlight a target
+            driver.execute_script("document.getElementById(arguments[0]).scrollIntoView();"
+                                  "window.scrollBy(0, -60);", anchor)
         png = driver.get_screenshot_as_png()
     from ibt.files import atomic_write_bytes
 
@@ -335,7 +345,8 @@ def main(argv: list[str] | None = None) -> int:
     check.add_argument("html_dir")
     shot = sub.add_parser("screenshot", help="a PNG of one page")
     shot.add_argument("html_dir")
-    shot.add_argument("page", help="the page's path in the book, e.g. index.html")
+    shot.add_argument("page", help="the page's path in the book, e.g. index.html or "
+                      "notebooks/07_front.html#the-front")
     shot.add_argument("output")
     shot.add_argument("--width", type=int, default=1280)
     shot.add_argument("--height", type=int, default=900)

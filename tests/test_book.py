@@ -93,23 +93,28 @@ def test_every_page_opens_offline_without_problems(html):
 
 
 def test_the_check_reports_planted_problems(html, tmp_path):
-    # Expect: a copy of a page with a broken link, a broken anchor, a missing image and a
-    # script error gets exactly those problems (the image twice: not on disk, and the browser's
-    # failed load in the console), and the page it copies none
+    # Expect: a copy of a page with a broken link, a broken anchor, a link out of the book (to
+    # a file that exists), a missing image and a script error gets exactly those problems (the
+    # image twice: not on disk, and the browser's failed load in the console); the page it
+    # copies gets none
     _need_browser()
     copy = tmp_path / "html"
     shutil.copytree(html, copy, ignore=shutil.ignore_patterns("mathjax"))
+    (tmp_path / "outside-the-book.html").write_text("<p>beside the book, not in it</p>")
     original = copy / "docs" / "format.html"
     planted = original.with_name("planted.html")
     planted.write_text(original.read_text().replace("</body>", (
         '<a href="no-such-page.html">x</a><a href="format.html#no-such-anchor">y</a>'
+        '<a href="../../outside-the-book.html">o</a>'
         '<img src="../_images/no-such-image.png" alt="z">'
         '<script>throw new Error("planted error")</script></body>')))
     problems = book.check_pages(copy, [original, planted])
-    found = {(p.page, p.kind, re.sub(r".*(no-such-\w+|planted error).*", r"\1", p.detail))
+    found = {(p.page, p.kind,
+              re.sub(r".*(no-such-\w+|planted error|outside-the-book).*", r"\1", p.detail))
              for p in problems}
     assert found == {("docs/planted.html", "link", "no-such-page"),
                      ("docs/planted.html", "link", "no-such-anchor"),
+                     ("docs/planted.html", "link", "outside-the-book"),
                      ("docs/planted.html", "image", "no-such-image"),
                      ("docs/planted.html", "console", "no-such-image"),
                      ("docs/planted.html", "console", "planted error")}, problems
@@ -140,3 +145,23 @@ def test_api_pages_cover_every_module():
              for p in (ROOT / "ibt").rglob("*.py")}
     listed = [m for modules in book.api_modules().values() for m in modules]
     assert sorted(listed) == sorted(files - {"ibt.__main__"})
+
+
+def test_screenshot_of_a_page(html, tmp_path):
+    # Expect: a PNG of the browser's window size; an anchor that is not there is refused
+    _need_browser()
+    png = book.screenshot(html, "notebooks/07_front.html#the-front", tmp_path / "a.png",
+                          width=640, height=480)
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert int.from_bytes(data[16:20], "big") == 640
+    with pytest.raises(FileNotFoundError, match="no anchor"):
+        book.screenshot(html, "notebooks/07_front.html#nowhere", tmp_path / "b.png")
+    assert not (tmp_path / "b.png").exists()
+
+
+def test_command_line_refuses_a_folder_without_a_book(tmp_path, capsys):
+    # Expect: exit 2 and one line naming the fix, for a folder that holds no built book
+    assert book.main(["check", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "make book" in err
