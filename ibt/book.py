@@ -66,20 +66,9 @@ def api_modules() -> dict[str, list[str]]:
     return pages
 
 
-def _first_docstring_line(module: str) -> str:
-    """The first line of a module's docstring, read from its source (not imported)."""
-    import ast
-
-    parts = module.split(".")[1:]
-    base = PACKAGE_ROOT.joinpath(*parts)
-    path = base / "__init__.py" if base.is_dir() else base.with_suffix(".py")
-    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
-    return doc.strip().splitlines()[0] if doc.strip() else ""
-
-
 def api_page(page: str, modules: list[str]) -> str:
     """One page of the API reference: every module of a sub-package, members from docstrings."""
-    lines = [f"# `{page}`", "", _first_docstring_line(page), ""]
+    lines = [f"# `{page}`", ""]
     for module in modules:
         if module != page:
             lines += [f"## `{module}`", ""]
@@ -329,7 +318,7 @@ def screenshot(html_dir: str | Path, page: str, output: str | Path, width: int =
         _settled(driver)
         if anchor:  # scrolled to, not navigated to: the theme would highlight a target
             driver.execute_script("document.getElementById(arguments[0]).scrollIntoView();"
-                                  "window.scrollBy(0, -60);", anchor)
+                                  "window.scrollBy(0, -50);", anchor)
         png = driver.get_screenshot_as_png()
     from ibt.files import atomic_write_bytes
 

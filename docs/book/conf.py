@@ -59,6 +59,7 @@ napoleon_google_docstring = True
 
 html_theme = "sphinx_book_theme"
 html_title = "Imitation-BT"
+highlight_language = "none"  # blocks that name no language (usage lines) stay plain
 smartquotes = False  # `--refresh` and "quotes" stay as typed
 html_last_updated_fmt = None
 html_copy_source = False
