@@ -56,6 +56,12 @@ smoke: setup ## run every notebook under the smoke profile into build/smoke (sec
 		IBT_PROFILE=smoke $(BIN)/papermill --no-progress-bar --cwd notebooks $$nb build/smoke/$$(basename $$nb); \
 	done
 
+book: setup ## the HTML book (notebooks with their committed outputs, report, formats, CLI, API), offline
+	@start=$$(date +%s); $(BIN)/sphinx-build -q -W --keep-going -b html -c docs/book \
+		-d build/book/doctrees . build/book/html && \
+	echo "make book: $$(( $$(date +%s) - start )) s; open build/book/html/index.html" \
+		"(check it: $(BIN)/python -m ibt.book check build/book/html)"
+
 lint: setup ## ruff, mypy (the package) and the import-layer contract (pyproject.toml)
 	$(BIN)/ruff check ibt tests notebooks
 	$(BIN)/mypy
@@ -69,12 +75,6 @@ test: setup lint ## ruff + unit/property tests + every notebook under the smoke 
 
 test-slow: setup ## the slow tests too (training determinism, full-size runs)
 	$(BIN)/python -m pytest -q
-
-book: setup ## the HTML book (notebooks with their committed outputs, report, formats, CLI, API), offline
-	@start=$$(date +%s); $(BIN)/sphinx-build -q -W --keep-going -b html -c docs/book \
-		-d build/book/doctrees . build/book/html && \
-	echo "make book: $$(( $$(date +%s) - start )) s; open build/book/html/index.html" \
-		"(check it: $(BIN)/python -m ibt.book check build/book/html)"
 
 lab: setup ## open JupyterLab on the notebooks
 	$(BIN)/jupyter lab notebooks
