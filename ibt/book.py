@@ -13,9 +13,9 @@ is not there, an image that does not show, a JavaScript error or a file the page
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
-import pkgutil
 import re
 import shutil
 import sys
@@ -52,28 +52,59 @@ return {
 # ---------------------------------------------------------------- the API reference's pages
 
 
+def _module_names() -> list[str]:
+    """Every module of ``ibt``, read off the files (nothing is imported)."""
+    names = []
+    for path in PACKAGE_ROOT.rglob("*.py"):
+        parts = path.relative_to(PACKAGE_ROOT.parent).with_suffix("").parts
+        names.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    return sorted(n for n in names if n not in SKIPPED_MODULES)
+
+
 def api_modules() -> dict[str, list[str]]:
-    """Every module of ``ibt``, grouped by page: ``ibt`` (the top-level modules) and one entry
-    per sub-package, in name order. Found on disk, so nothing is imported here."""
-    pages: dict[str, list[str]] = {"ibt": ["ibt"]}
-    for info in sorted(pkgutil.walk_packages([str(PACKAGE_ROOT)], prefix="ibt."),
-                       key=lambda m: m.name):
-        if info.name in SKIPPED_MODULES:
-            continue
-        top = ".".join(info.name.split(".")[:2])
-        page = top if (info.ispkg or top != info.name) else "ibt"
-        pages.setdefault(page, []).append(info.name)
-    return pages
+    """Every module of ``ibt``, grouped by page: ``ibt`` (the package and its top-level modules)
+    and one entry per sub-package, in name order."""
+    pages: dict[str, list[str]] = {}
+    for name in _module_names():
+        top = ".".join(name.split(".")[:2])
+        is_package = (PACKAGE_ROOT.parent / top.replace(".", os.sep)).is_dir()
+        pages.setdefault(top if is_package else "ibt", []).append(name)
+    return dict(sorted(pages.items()))
+
+
+def shadowed_names(init: Path, submodules: set[str]) -> dict[str, str]:
+    """Names a package's ``__init__.py`` defines that are also names of its submodules
+    (``ibt.cli.main`` can be both a function and a module), each with the autodoc directive of
+    what the package defines there."""
+    found = {}
+    for node in ast.parse(init.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            if node.name in submodules:
+                found[node.name] = ("autoclass" if isinstance(node, ast.ClassDef)
+                                    else "autofunction")
+    return found
 
 
 def api_page(page: str, modules: list[str]) -> str:
-    """One page of the API reference: every module of a sub-package, members from docstrings."""
+    """One page of the API reference: every module of a sub-package, members from docstrings.
+
+    A package function named like one of its submodules is shown without an index entry (one
+    name cannot point to both); the submodule keeps the name."""
     lines = [f"# `{page}`", ""]
     for module in modules:
         if module != page:
             lines += [f"## `{module}`", ""]
+        shadowed = (shadowed_names(
+            PACKAGE_ROOT.parent.joinpath(*page.split("."), "__init__.py"),
+            {m.rpartition(".")[2] for m in modules if m.count(".") == page.count(".") + 1})
+            if module == page and page != "ibt" else {})
         lines += ["```{eval-rst}", f".. automodule:: {module}", "   :members:",
-                  "   :show-inheritance:", "```", ""]
+                  "   :show-inheritance:"]
+        if shadowed:
+            lines += [f"   :exclude-members: {', '.join(sorted(shadowed))}", ""]
+            for name, kind in sorted(shadowed.items()):
+                lines += [f".. {kind}:: {module}.{name}", "   :no-index:", ""]
+        lines += ["```", ""]
     return "\n".join(lines)
 
 

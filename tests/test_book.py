@@ -165,3 +165,12 @@ def test_command_line_refuses_a_folder_without_a_book(tmp_path, capsys):
     assert book.main(["check", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "make book" in err
+
+
+def test_a_package_function_named_like_its_submodule_is_not_indexed_twice(tmp_path):
+    # Expect: only names the package itself defines (def or class) and a submodule carries
+    init = tmp_path / "__init__.py"
+    init.write_text("from x import y as checks\n\ndef main():\n    pass\n\nclass Tool:\n"
+                    "    pass\n\ndef other():\n    pass\n")
+    assert book.shadowed_names(init, {"main", "checks", "Tool", "commands"}) == {
+        "main": "autofunction", "Tool": "autoclass"}
