@@ -9,7 +9,7 @@ export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 
 .DEFAULT_GOAL := help
-.PHONY: help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean
+.PHONY: help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -54,6 +54,12 @@ smoke: setup ## run every notebook under the smoke profile into build/smoke (sec
 	@set -e; for nb in $(NOTEBOOKS); do \
 		IBT_PROFILE=smoke $(BIN)/papermill --no-progress-bar --cwd notebooks $$nb build/smoke/$$(basename $$nb); \
 	done
+
+book: setup ## the HTML book (notebooks with their committed outputs, report, formats, CLI, API), offline
+	@start=$$(date +%s); $(BIN)/sphinx-build -q -W --keep-going -b html -c docs/book \
+		-d build/book/doctrees . build/book/html && \
+	echo "make book: $$(( $$(date +%s) - start )) s; open build/book/html/index.html" \
+		"(check it: $(BIN)/python -m ibt.book check build/book/html)"
 
 lint: setup ## ruff, mypy (the package) and the import-layer contract (pyproject.toml)
 	$(BIN)/ruff check ibt tests notebooks
