@@ -9,7 +9,7 @@ export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 
 .DEFAULT_GOAL := help
-.PHONY: help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book
+.PHONY: bench-pipeline help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -48,6 +48,9 @@ reproduce: setup ## recompute everything from scratch: experts, grids, figures (
 	$(BIN)/python -m ibt random-baselines
 	IBT_CACHE_DIR=$(CURDIR)/build/reproduce/cache $(MAKE) figures
 	rm -f build/reproduce/started
+
+bench-pipeline: setup ## time `python -m ibt pipeline` on users' tasks and committed experts (data/results/pipeline_bench.csv; an hour with LunarLander)
+	PYTHONPATH=$(CURDIR) $(BIN)/python -m tests.bench_pipeline $(CASES)
 
 smoke: setup ## run every notebook under the smoke profile into build/smoke (seconds each)
 	@mkdir -p build/smoke

@@ -7,8 +7,9 @@ Each case runs ``python -m ibt pipeline`` in a subprocess with a fresh cache (wh
 meets), timed as a whole; its row goes into ``data/results/pipeline_bench.csv`` (rows of other
 cases are kept). Agents of the users' own tasks are trained first (seeded; not timed). Then, for
 the cases marked ``full``, the whole ladder is climbed on the same cache (every rung and step,
-whatever kept the target) to measure how often a larger leaf limit would have given a smaller
-BT that keeps the target, which the ladder's stop rule gives up.
+whatever kept the target; distillation and refinement, not the structure search, to keep it
+within minutes) to measure how often a larger leaf limit would have given a smaller BT that keeps
+the target, which the ladder's stop rule gives up.
 """
 
 from __future__ import annotations
@@ -136,7 +137,7 @@ def full_ladder(case: Case, cache: Path, chosen_nodes: int) -> dict[str, object]
     modules = (case.env_module,) if case.env_module else ()
     rec = recommend(sb3_agent(task, case.algo, checkpoint), cache_dir=cache, progress=False,
                     env_modules=modules,
-                    full=True, time_limit=None, n_jobs=os.cpu_count() or 1)
+                    full=True, search=False, time_limit=None, n_jobs=os.cpu_count() or 1)
     keeping = [c.bt_nodes for c in rec.candidates if c.retention >= 100 * rec.keep]
     return {"full_wall_s": round(time.perf_counter() - start, 1),
             "full_candidates": len(rec.candidates),

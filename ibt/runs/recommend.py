@@ -183,7 +183,7 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
               argv: list[str] | None = None, env_modules: tuple[str, ...] = (),
               relational: bool = True, time_limit: float | None = DEFAULT_TIME,
               max_nodes: int | None = None, restarts: int = DEFAULT_RESTARTS,
-              n_jobs: int = 1, full: bool = False) -> Recommendation:
+              n_jobs: int = 1, full: bool = False, search: bool = True) -> Recommendation:
     """Climb the ladder for ``agent`` within ``time_limit`` seconds; the recommended BT (among
     those of at most ``max_nodes`` nodes) and everything measured."""
     from ibt.evaluate.policies import BTPolicy
@@ -201,7 +201,7 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
     warning = agent_lead(agent_choice, random_choice, task)
     settings = Settings(keep, tuple(sorted(set(leaf_limits))), seed, relational, restarts,
                         n_jobs, budget.scale, budget.refine_episodes, max_nodes,
-                        env_modules=tuple(env_modules), full=full)
+                        search=search, env_modules=tuple(env_modules), full=full)
     bar = tqdm(desc=f"pipeline {task.name}/{agent.algo}", unit="step", disable=not progress,
                bar_format="{desc}: {n_fmt} steps [{elapsed}] {postfix}")
 
