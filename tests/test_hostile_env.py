@@ -177,8 +177,11 @@ def observe(case: Case, materials: Path, folder: Path) -> Observed:
     """Run ``case`` in a fresh copy of the materials; what it printed and changed."""
     shutil.copytree(materials, folder)
     (folder / "out").mkdir()
-    (folder / "out" / EARLIER).write_text("an earlier result\n")
-    (folder / "out" / NOTES).write_text("the user's own notes\n")
+    if case.command.startswith("pipeline"):  # it writes only into a folder it owns: the
+        (folder / NOTES).write_text("the user's own notes\n")  # user's files sit beside it
+    else:
+        (folder / "out" / EARLIER).write_text("an earlier result\n")
+        (folder / "out" / NOTES).write_text("the user's own notes\n")
     before = _snapshot(folder)
     environ = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(folder)]),
                "SDL_VIDEODRIVER": "dummy", "PYTHONHASHSEED": "0"}
@@ -187,7 +190,7 @@ def observe(case: Case, materials: Path, folder: Path) -> Observed:
     after = _snapshot(folder)
     if case.exit_code == 0:  # a finished run writes its files; the user's own ones stay
         changed = [p for p in before if before[p] != after.get(p)
-                   and (not p.startswith("out/") or p == f"out/{NOTES}")]
+                   and (not p.startswith("out/") or p.endswith(NOTES))]
     else:
         changed = sorted(p for p in set(before) | set(after) if before.get(p) != after.get(p))
     def plain(text: str) -> str:  # the case's folders as the doc names them

@@ -415,7 +415,9 @@ DOCUMENT_KEYS = frozenset({"format", "feature_names", "action_names", "tick_rule
                            "value_labels", "commands", "root"})
 
 
-def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+def no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``json.loads``'s ``object_pairs_hook`` that refuses a key given twice (JSON keeps the
+    last silently: a file would not read as it looks)."""
     doc: dict[str, Any] = {}
     for key, value in pairs:
         if key in doc:
@@ -431,7 +433,7 @@ def strict_json(text: str | bytes) -> Any:
     try:
         if isinstance(text, bytes):
             text = text.decode("utf-8")
-        return json.loads(text, object_pairs_hook=_no_duplicates)
+        return json.loads(text, object_pairs_hook=no_duplicate_keys)
     except RecursionError:
         raise ValueError("nested too deeply to be a behavior tree") from None
     except ValueError as err:  # JSONDecodeError, UnicodeDecodeError, duplicate keys

@@ -452,7 +452,7 @@ def _disagreement(xml: Path, run: Any) -> str:
 
 def _pipeline(args: argparse.Namespace) -> int:
     from ibt.runs.engine.agent import callable_agent, sb3_agent
-    from ibt.runs.owned_folder import FolderError, claim, take
+    from ibt.runs.owned_folder import FolderError, claim, release, take
     from ibt.runs.recommend_files import OUTPUTS
 
     # every path is checked before any work: the folder, the cache, the checkpoint
@@ -488,13 +488,19 @@ def _pipeline(args: argparse.Namespace) -> int:
     from ibt.runs.recommend import recommend
     from ibt.runs.recommend_files import write_outputs
 
-    take(folder)  # marked as the pipeline's before the long work: a rerun may write there
-    with one_line_warnings():  # e.g. one line for a cache that cannot be written
-        rec = recommend(agent, keep=args.keep, budget=args.budget, leaf_limits=args.leaves,
-                        seed=args.seed, episodes=args.episodes, cache_dir=cache,
-                        progress=not args.quiet, argv=args.argv, env_modules=args.env_module,
-                        time_limit=args.time, max_nodes=args.max_nodes,
-                        restarts=args.restarts, n_jobs=args.jobs or os.cpu_count() or 1)
+    first = take(folder)  # marked as the pipeline's before the long work: a rerun may write
+    try:
+        with one_line_warnings():  # e.g. one line for a cache that cannot be written
+            rec = recommend(agent, keep=args.keep, budget=args.budget,
+                            leaf_limits=args.leaves, seed=args.seed, episodes=args.episodes,
+                            cache_dir=cache, progress=not args.quiet, argv=args.argv,
+                            env_modules=args.env_module, time_limit=args.time,
+                            max_nodes=args.max_nodes, restarts=args.restarts,
+                            n_jobs=args.jobs or os.cpu_count() or 1)
+    except BaseException:
+        if first:
+            release(folder)
+        raise
     try:
         write_outputs(rec, folder)
     except FolderError as err:

@@ -32,6 +32,7 @@ import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ibt.bt.model import no_duplicate_keys
 from ibt.distill.tree_codec import (
     PlainDataError,
     check_tree,
@@ -87,20 +88,11 @@ def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
     return data
 
 
-def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    doc: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in doc:
-            raise ValueError(f"duplicate key {key!r:.60}")
-        doc[key] = value
-    return doc
-
-
 def parse_json(data: bytes, path: str | Path, what: str) -> Any:
     """Strict JSON: UTF-8, no duplicate keys; ``ValueError`` naming ``path``. (NaN literals
     are read, so that the reader of the document can say which field must be finite.)"""
     try:
-        return json.loads(data.decode("utf-8"), object_pairs_hook=_no_duplicates)
+        return json.loads(data.decode("utf-8"), object_pairs_hook=no_duplicate_keys)
     except RecursionError:
         raise ValueError(f"{path} is nested too deeply to be a {what}") from None
     except (UnicodeDecodeError, ValueError) as err:

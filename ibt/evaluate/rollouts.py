@@ -315,6 +315,14 @@ def retention_norm(mean_return: float, expert_return: float, random_return: floa
     return 100.0 * (mean_return - random_return) / span
 
 
+def retention_norm_column(mean_return: Any, expert_return: Any, random_return: Any) -> Any:
+    """:func:`retention_norm` of columns (pandas Series or arrays), NaN where undefined."""
+    span = expert_return - random_return
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = 100.0 * (mean_return - random_return) / span
+    return out.where(np.isfinite(span) & (span != 0))
+
+
 def retention_margin(policy_std: float, expert_std: float, n_episodes: int,
                      expert_return: float, random_return: float) -> float:
     """Two standard errors of a random-normalised retention, in percentage points: the noise

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from ibt.bt.model import BehaviorTree
-from ibt.evaluate.rollouts import retention_norm
+from ibt.evaluate.rollouts import retention_norm_column
 from ibt.paths import DATA_DIR
 from ibt.profiles import Config
 from ibt.tasks.catalogue import get_task
@@ -81,7 +81,7 @@ def candidates(results: Path) -> pd.DataFrame:
                                    method=part.method.where(~part.refined,
                                                             part.method + ", refined")))
     table = pd.concat([front, protocol, searched, *box], ignore_index=True)
-    table["retention_norm"] = retention_norm(table.mean_return, table.expert_return,
+    table["retention_norm"] = retention_norm_column(table.mean_return, table.expert_return,
                                              table.random_return)
     # the share of episodes >= 200 is LunarLander's "solved" landing; elsewhere it means nothing
     table.loc[~table.task.str.startswith("LunarLander"), "share_200"] = np.nan
@@ -138,8 +138,8 @@ def headline_table(results: Path = DATA_DIR / "results", tasks: list[str] | None
 
     published = anchors()
     picked = select(candidates(results), tasks or headline_tasks(), published)
-    picked["anchor_retention"] = retention_norm(picked.anchor_return, picked.expert_return,
-                                                picked.random_return)
+    picked["anchor_retention"] = retention_norm_column(picked.anchor_return,
+                                                       picked.expert_return, picked.random_return)
     picked = picked.merge(paper_method(results), on=["task", "expert"], how="left")
     # the paper's own number, where it gives one: its MountainCar BT's node count
     picked["paper_bt_nodes"] = np.where(picked.task == "MountainCar-v0", PAPER_RULE_NODES,

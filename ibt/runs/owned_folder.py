@@ -166,11 +166,13 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
     return folder
 
 
-def take(folder: OwnedFolder) -> None:
+def take(folder: OwnedFolder) -> bool:
     """Make the folder (if needed) and mark it as the pipeline's, before the long work; remove
-    the temporary folders killed runs left there."""
+    the temporary folders killed runs left there. True where this run wrote the first marker
+    (:func:`release` takes it back when the run fails before writing anything)."""
     folder.path.mkdir(parents=True, exist_ok=True)
     marker = _marker(folder.path)
+    first = not marker
     if not marker or (folder.cache and marker.get("cache") != folder.cache):
         files = marker.get("files", {})
         _write_marker(folder.path, {"format": FORMAT, "files": files, "cache": folder.cache,
@@ -180,6 +182,17 @@ def take(folder: OwnedFolder) -> None:
             if temp.is_dir() and not temp.is_symlink() \
                     and time.time() - temp.stat().st_mtime > STALE_SECONDS:
                 shutil.rmtree(temp)
+    return first
+
+
+def release(folder: OwnedFolder) -> None:
+    """Remove the marker :func:`take` wrote first, where no output was written since: a run
+    that failed on bad input leaves the folder as it found it (its cache aside, whose entries
+    are whole and let a corrected rerun resume)."""
+    marker = _marker(folder.path)
+    if marker and not marker.get("files"):
+        with contextlib.suppress(OSError):
+            (folder.path / MARKER).unlink()
 
 
 def _write_marker(folder: Path, doc: dict[str, Any]) -> None:

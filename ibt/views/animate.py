@@ -94,7 +94,8 @@ def best_expert(task: Task, data_dir: Path = DATA_DIR) -> str:
 def episode(task: Task, bt: BehaviorTree, seed: int, max_steps: int, render: bool = True
             ) -> Iterator[Step]:
     """Run ``bt`` on ``task`` from ``reset(seed=seed)``, yielding every step (with its frame
-    when ``render``; the states a BT really meets, for trace views)."""
+    when ``render``; the states a BT really meets, for trace views). A BT with commands sends
+    its chosen command's vector; the step records the command's index."""
     with sdl_video_driver(task.render_driver if render else None):
         env = task.make_env(render_mode="rgb_array") if render else task.make_env()
         try:
@@ -105,7 +106,9 @@ def episode(task: Task, bt: BehaviorTree, seed: int, max_steps: int, render: boo
                 action, trace = tick(bt, features)
                 frame = np.asarray(env.render()) if render else np.zeros((0, 0, 3), np.uint8)
                 yield Step(t, frame, features, action, tuple(trace), total)
-                obs, reward, terminated, truncated, _ = env.step(action)
+                sent = (np.asarray(bt.commands.values[action], dtype=np.float32)
+                        if bt.commands is not None else action)
+                obs, reward, terminated, truncated, _ = env.step(sent)
                 total += float(reward)
                 if terminated or truncated:
                     return

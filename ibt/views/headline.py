@@ -9,7 +9,6 @@ cache under the paper budgets (:func:`lookup_config`): nothing is computed.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ibt.bt.executors import tick
 from ibt.bt.model import BehaviorTree
 from ibt.evaluate.rollouts import final_seeds
 from ibt.paths import DATA_DIR
@@ -25,33 +23,11 @@ from ibt.profiles import Config
 from ibt.runs.headline import KEEP, bt_of, headline_table
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import Clip
-from ibt.tasks.task import Task, sdl_video_driver
-from ibt.views.animate import COLORS, PALETTE_FRAMES, Film, Step
+from ibt.tasks.task import Task
+from ibt.views.animate import COLORS, PALETTE_FRAMES, Film, Step, episode
 
 DEFAULT_CLIP = Clip(200, 4, 110)  #: a task without a clip of its own (the continuous ones)
 SMOKE_TASKS = ("MountainCar-v0",)
-
-
-def episode(task: Task, bt: BehaviorTree, seed: int, max_steps: int) -> Iterator[Step]:
-    """:func:`ibt.views.animate.episode` for discrete and command BTs alike (a command BT's
-    action is its command's vector)."""
-    with sdl_video_driver(task.render_driver):
-        env = task.make_env(render_mode="rgb_array")
-        try:
-            obs, _ = env.reset(seed=seed)
-            total = 0.0
-            for t in range(max_steps):
-                features = task.features(np.asarray(obs)[None])[0]
-                action, trace = tick(bt, features)
-                yield Step(t, np.asarray(env.render()), features, action, tuple(trace), total)
-                sent = (np.asarray(bt.commands.values[action], dtype=np.float32)
-                        if bt.commands is not None else action)
-                obs, reward, terminated, truncated, _ = env.step(sent)
-                total += float(reward)
-                if terminated or truncated:
-                    return
-        finally:
-            env.close()
 
 
 class _HeadlineFilm(Film):
