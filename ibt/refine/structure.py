@@ -68,8 +68,9 @@ class Evolution:
     steps: int = 0
     wall_seconds: float = 0.0
     cpu_seconds: float = 0.0
-    # environment steps per CPU-second: the search's, and a uniform random policy's stepped by
-    # the same batched rollout in the same run (the physical limit of this machine)
+    # environment steps per CPU-second: the search's (every step its CPU paid for, the held-out
+    # choice's too, though only the budget's count in ``steps``), and a uniform random policy's
+    # stepped by the same batched rollout in the same run (the physical limit of this machine)
     steps_per_second: float = 0.0
     random_steps_per_second: float = 0.0
 
@@ -196,6 +197,7 @@ class _Budget(_Episodes):
     def __init__(self, task: Task, seed: int, config: EvolveConfig, bar: Any) -> None:
         super().__init__(task, seed, config, bar)  # type: ignore[arg-type]
         self.next_seed = EVOLVE_SEED_BASE + 1_000_000 * seed
+        self.uncounted_steps = 0  # stepped outside the budget (the held-out choice)
 
     def score_trees(self, trees: list[TreeArrays], seeds: list[int], *, count: bool = True
                     ) -> np.ndarray:
@@ -214,6 +216,8 @@ class _Budget(_Episodes):
             self.used += len(all_seeds)
             self.steps += int(result.lengths.sum())
             self.bar.update(len(all_seeds))
+        else:
+            self.uncounted_steps += int(result.lengths.sum())
         return result.returns.reshape(len(trees), k)
 
     def visit(self, tree: TreeArrays, n_episodes: int) -> np.ndarray:
@@ -489,7 +493,8 @@ def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
     record.episodes, record.steps = budget.used, budget.steps
     record.wall_seconds = time.perf_counter() - start
     record.cpu_seconds = time.process_time() - cpu_start
-    record.steps_per_second = record.steps / max(record.cpu_seconds, 1e-9)
+    record.steps_per_second = ((record.steps + budget.uncounted_steps)
+                               / max(record.cpu_seconds, 1e-9))
     record.random_steps_per_second = _random_speed(task, config, seed)
     return record
 
@@ -525,9 +530,11 @@ def reselect(record: Evolution, task: Task, selection_episodes: int) -> Evolutio
     cpu_start = time.process_time()
     chosen = replace(record, config={**record.config, "selection_episodes": selection_episodes},
                      finalists=list(record.finalists))
-    _choose(chosen, _Budget(task, record.seed, config, _NoProgress()), selection_episodes)
+    budget = _Budget(task, record.seed, config, _NoProgress())
+    _choose(chosen, budget, selection_episodes)
     chosen.cpu_seconds = record.cpu_seconds + time.process_time() - cpu_start
-    chosen.steps_per_second = chosen.steps / max(chosen.cpu_seconds, 1e-9)
+    stepped = record.steps_per_second * record.cpu_seconds + budget.uncounted_steps
+    chosen.steps_per_second = stepped / max(chosen.cpu_seconds, 1e-9)
     return chosen
 
 
