@@ -118,3 +118,30 @@ def test_a_search_budget_below_one_generation_is_refused():
     assert search_config(cfg, task, 9).episodes == task.evolve.episodes
     with pytest.raises(ValueError, match="below one generation"):
         search_config(cfg, task, 9, 1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10**6), st.integers(2, 12), st.integers(1, 60))
+def test_forest_reads_only_the_tested_columns_and_decides_as_on_every_column(seed, leaves,
+                                                                            rows):
+    """The search's rollouts compute only the derived columns some split tests
+    (:meth:`Forest.reader`); decisions equal the Forest's on the fully augmented rows,
+    for a rollout's few rows (walked in Python) and for full batches alike."""
+    from ibt.refine.structure import Forest
+    from ibt.tasks.catalogue import get_task
+
+    task = get_task("CartPole-v1")
+    fmap = FeatureMap.pairs(task.n_features)
+    wide = augmented_task(task, fmap)
+    trees = [_wide_tree(seed + k, leaves, fmap) for k in range(3)]
+    rng = np.random.default_rng(seed)
+    obs = (rng.normal(size=(rows, task.n_features)) * 3).astype(np.float32)
+    members = rng.integers(len(trees), size=rows)
+    forest = Forest(trees)
+    expected = forest.decide(wide.features(obs), members)
+    assert np.array_equal(forest.decide_columns(forest.reader(wide)(obs), members), expected)
+    for k, tree in enumerate(trees):
+        chosen = members == k
+        if not chosen.any():
+            continue
+        assert np.array_equal(expected[chosen], tree.predict(wide.features(obs[chosen])))

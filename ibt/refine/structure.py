@@ -30,6 +30,7 @@ side by side in one batch of environments (:class:`Forest`), the trees decided o
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -39,6 +40,7 @@ from tqdm import tqdm
 
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout, selection_seeds
 from ibt.refine.by_return import _Episodes, _prune_stage
+from ibt.refine.relational import AugmentedTask
 from ibt.refine.tree_arrays import TreeArrays, _from_nested
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -66,8 +68,9 @@ class Evolution:
     steps: int = 0
     wall_seconds: float = 0.0
     cpu_seconds: float = 0.0
-    # environment steps per CPU-second: the search's, and a uniform random policy's stepped by
-    # the same batched rollout in the same run (the physical limit of this machine)
+    # environment steps per CPU-second: the search's (every step its CPU paid for, the held-out
+    # choice's too, though only the budget's count in ``steps``), and a uniform random policy's
+    # stepped by the same batched rollout in the same run (the physical limit of this machine)
     steps_per_second: float = 0.0
     random_steps_per_second: float = 0.0
 
@@ -82,40 +85,109 @@ class Evolution:
 
 class Forest:
     """Trees of different shapes decided side by side: ``decide(x, members)`` routes row ``i``
-    through tree ``members[i]`` (float32 features widened to float64, as scikit-learn)."""
+    through tree ``members[i]`` (float32 features widened to float64, as scikit-learn).
+
+    A rollout reads only the columns some split tests (:meth:`reader`: on a relational search's
+    hundred-odd candidate columns, computing them all on every step cost more than the trees),
+    and walks all trees at once on flat arrays; a leaf points to itself, so rows that reach a
+    leaf early stay there."""
 
     def __init__(self, trees: list[TreeArrays]) -> None:
         self.trees = trees
         width = max(t.node_count for t in trees)
-        shape = (len(trees), width)
-        self.feature = np.zeros(shape, dtype=np.int64)
-        self.threshold = np.zeros(shape, dtype=np.float64)
-        self.left = np.zeros(shape, dtype=np.int64)
-        self.right = np.zeros(shape, dtype=np.int64)
-        self.action = np.zeros(shape, dtype=np.int64)
-        self.is_leaf = np.ones(shape, dtype=bool)
+        self.width = width
+        tested = sorted({int(f) for t in trees for f in t.feature[~t.is_leaf]})
+        self.columns = np.array(tested or [0], dtype=np.int64)  # the features some split reads
+        position = {c: k for k, c in enumerate(self.columns.tolist())}
+        size = len(trees) * width
+        self.feature = np.zeros(size, dtype=np.int64)  # position in ``columns``
+        self.threshold = np.zeros(size, dtype=np.float64)
+        self.left = np.arange(size, dtype=np.int64)  # flat node numbers; a leaf: itself
+        self.right = np.arange(size, dtype=np.int64)
+        self.action = np.zeros(size, dtype=np.int64)
         for i, t in enumerate(trees):
-            n = t.node_count
-            self.feature[i, :n] = np.maximum(t.feature, 0)
-            self.threshold[i, :n] = t.threshold
-            self.left[i, :n] = np.where(t.is_leaf, 0, t.left)
-            self.right[i, :n] = np.where(t.is_leaf, 0, t.right)
-            self.action[i, :n] = t.action
-            self.is_leaf[i, :n] = t.is_leaf
+            base, split = i * width, ~t.is_leaf
+            nodes = base + np.flatnonzero(split)
+            self.feature[nodes] = [position[int(f)] for f in t.feature[split]]
+            self.threshold[nodes] = t.threshold[split]
+            self.left[nodes] = base + t.left[split]
+            self.right[nodes] = base + t.right[split]
+            self.action[base:base + t.node_count] = t.action
         self.depth = max(t.depth() for t in trees)
+        self._lists: tuple[list, ...] | None = None
 
     def __len__(self) -> int:
         return len(self.trees)
 
     def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
         x = np.asarray(features, dtype=np.float32).astype(np.float64)
-        rows = np.arange(len(x))
-        node = np.zeros(len(x), dtype=np.int64)
+        return self.decide_columns(x[:, self.columns], members)
+
+    def decide_columns(self, x: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """:meth:`decide` on rows of :attr:`columns` only, already widened to float64
+        (:meth:`reader`'s rows)."""
+        if len(x) <= SMALL_BATCH:
+            return self._decide_rows(x, members)
+        n, n_columns = x.shape
+        flat = x.ravel()
+        row_start = np.arange(n, dtype=np.int64) * n_columns
+        node = np.asarray(members, dtype=np.int64) * self.width
         for _ in range(self.depth):
-            go_left = x[rows, self.feature[members, node]] <= self.threshold[members, node]
-            nxt = np.where(go_left, self.left[members, node], self.right[members, node])
-            node = np.where(self.is_leaf[members, node], node, nxt)
-        return self.action[members, node]
+            go_left = flat[row_start + self.feature[node]] <= self.threshold[node]
+            node = np.where(go_left, self.left[node], self.right[node])
+        return self.action[node]
+
+    def _decide_rows(self, x: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """A rollout's last few rows: walking in Python beats array passes (the same float64
+        comparisons)."""
+        if self._lists is None:
+            self._lists = (self.feature.tolist(), self.threshold.tolist(), self.left.tolist(),
+                           self.right.tolist(), self.action.tolist())
+        feature, threshold, left, right, action = self._lists
+        width = self.width
+        out = []
+        for row, member in zip(x.tolist(), np.asarray(members).tolist(), strict=True):
+            node = member * width
+            while left[node] != node:
+                node = left[node] if row[feature[node]] <= threshold[node] else right[node]
+            out.append(action[node])
+        return np.array(out, dtype=np.int64)
+
+    def reader(self, task: Task) -> Callable[[np.ndarray], np.ndarray]:
+        """Raw observations -> the :attr:`columns` of ``task.features``, widened as
+        :meth:`decide` widens them; a relational search's derived columns are computed by
+        :meth:`ibt.bt.linear.FeatureMap.augment`'s rule (double products and sum, then the
+        float32 value) for the tested ones only."""
+        columns = self.columns
+        fmap = getattr(task, "feature_map", None)
+        if not isinstance(task, AugmentedTask) or fmap is None:
+            def read(obs: np.ndarray) -> np.ndarray:
+                return task.features(obs).astype(np.float64)[:, columns]
+            return read
+        n = fmap.n_features
+        observed = np.flatnonzero(columns < n)
+        derived = np.flatnonzero(columns >= n)
+        forms = [fmap.form(int(c)) for c in columns[derived]]
+        first = np.array([f.i for f in forms], dtype=np.int64)
+        second = np.array([f.j for f in forms], dtype=np.int64)
+        w1 = np.array([f.w1 for f in forms], dtype=np.float64)
+        w2 = np.array([f.w2 for f in forms], dtype=np.float64)
+        observed_columns = columns[observed]
+
+        def read_augmented(obs: np.ndarray) -> np.ndarray:
+            x = Task.features(task, obs).astype(np.float64)
+            out = np.empty((len(x), len(columns)), dtype=np.float64)
+            out[:, observed] = x[:, observed_columns]
+            if len(forms):
+                values = w1 * x[:, first] + w2 * x[:, second]
+                with np.errstate(over="ignore"):
+                    out[:, derived] = values.astype(np.float32)
+            return out
+        return read_augmented
+
+
+#: batches up to this many rows are decided row by row (see :meth:`Forest._decide_rows`)
+SMALL_BATCH = 16
 
 
 class _Budget(_Episodes):
@@ -125,11 +197,28 @@ class _Budget(_Episodes):
     def __init__(self, task: Task, seed: int, config: EvolveConfig, bar: Any) -> None:
         super().__init__(task, seed, config, bar)  # type: ignore[arg-type]
         self.next_seed = EVOLVE_SEED_BASE + 1_000_000 * seed
+        self.uncounted_steps = 0  # stepped outside the budget (the held-out choice)
 
     def score_trees(self, trees: list[TreeArrays], seeds: list[int], *, count: bool = True
                     ) -> np.ndarray:
-        """``(trees, episodes)`` returns, every tree on every seed."""
-        return self.score(Forest(trees), seeds, count=count)
+        """``(trees, episodes)`` returns, every tree on every seed (as
+        :meth:`ibt.refine.by_return._Episodes.score`, reading only the tested columns)."""
+        forest = Forest(trees)
+        read = forest.reader(self.task)
+        k = len(seeds)
+        all_seeds = [s for _ in range(len(trees)) for s in seeds]
+
+        def act(obs: np.ndarray, episodes: np.ndarray) -> np.ndarray:
+            return forest.decide_columns(read(obs), episodes // k)
+
+        result = rollout(self.task, act, all_seeds, n_envs=self.config.n_envs, indexed=True)
+        if count:
+            self.used += len(all_seeds)
+            self.steps += int(result.lengths.sum())
+            self.bar.update(len(all_seeds))
+        else:
+            self.uncounted_steps += int(result.lengths.sum())
+        return result.returns.reshape(len(trees), k)
 
     def visit(self, tree: TreeArrays, n_episodes: int) -> np.ndarray:
         """States the tree visits on ``n_episodes`` fresh episodes (counted)."""
@@ -404,7 +493,8 @@ def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
     record.episodes, record.steps = budget.used, budget.steps
     record.wall_seconds = time.perf_counter() - start
     record.cpu_seconds = time.process_time() - cpu_start
-    record.steps_per_second = record.steps / max(record.cpu_seconds, 1e-9)
+    record.steps_per_second = ((record.steps + budget.uncounted_steps)
+                               / max(record.cpu_seconds, 1e-9))
     record.random_steps_per_second = _random_speed(task, config, seed)
     return record
 
@@ -440,9 +530,11 @@ def reselect(record: Evolution, task: Task, selection_episodes: int) -> Evolutio
     cpu_start = time.process_time()
     chosen = replace(record, config={**record.config, "selection_episodes": selection_episodes},
                      finalists=list(record.finalists))
-    _choose(chosen, _Budget(task, record.seed, config, _NoProgress()), selection_episodes)
+    budget = _Budget(task, record.seed, config, _NoProgress())
+    _choose(chosen, budget, selection_episodes)
     chosen.cpu_seconds = record.cpu_seconds + time.process_time() - cpu_start
-    chosen.steps_per_second = chosen.steps / max(chosen.cpu_seconds, 1e-9)
+    stepped = record.steps_per_second * record.cpu_seconds + budget.uncounted_steps
+    chosen.steps_per_second = stepped / max(chosen.cpu_seconds, 1e-9)
     return chosen
 
 
