@@ -4,7 +4,7 @@ does not (what :meth:`ibt.bt.model.BehaviorTree.validate` reports).
 Regions are unions of boxes over the features; the acting region of the root is
 under-approximated and its complement searched for an uncovered box.
 
-**Relational conditions** (issue 26). Each distinct linear form of the BT is one more
+**Relational conditions**. Each distinct linear form of the BT is one more
 coordinate of the boxes, its *derived value* (column ``n_features + k``), treated as a free
 variable: a box over observed features and derived values holds every state whose features and
 computed forms lie in it. A proof that the boxes cover every point of this larger space covers

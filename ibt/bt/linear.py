@@ -1,4 +1,4 @@
-"""Relational tests: a condition on a weighted sum of two features (issue 26).
+"""Relational tests: a condition on a weighted sum of two features.
 
 A relational test reads ``w1 * x[i] + w2 * x[j] <= T``. Learners never see that form
 directly: they see *derived features*, extra columns ``z = w1 * x[i] + w2 * x[j]`` appended to

@@ -7,7 +7,7 @@ A synthesised policy is a tree of small frozen dataclasses:
 * ``Sequence``: tick children in order, fail on the first failure;
 * ``Inverter``: flip its child's status;
 * ``Condition``: succeeds when ``obs[feature] op threshold`` with ``op`` in ``<=`` / ``>``, or,
-  for a *relational* condition (issue 26), ``w1 * obs[i] + w2 * obs[j] op threshold`` (its
+  for a *relational* condition, ``w1 * obs[i] + w2 * obs[j] op threshold`` (its
   ``form``, a :class:`ibt.bt.linear.LinearForm`, computed in double by the floating-point rule
   of :mod:`ibt.bt.linear`);
 * ``Action``: succeeds and is the decision.
@@ -191,7 +191,7 @@ Node = Union[Selector, Fallback, Sequence, Inverter, Condition, Action]  # noqa:
 @dataclass(frozen=True)
 class Commands:
     """What each action of a BT for continuous actions sends: action ``i`` is the command
-    ``values[i]``, one number per named dimension (``dimensions``, with ``units``; issue 25).
+    ``values[i]``, one number per named dimension (``dimensions``, with ``units``).
 
     JSON (the ``commands`` key of a BT document)::
 

@@ -1,4 +1,4 @@
-"""States inside polytopes: the regions of relational trees and BTs (issue 26).
+"""States inside polytopes: the regions of relational trees and BTs.
 
 A region is a conjunction of *tests* ``(what, threshold, le)``: ``what`` is a feature index
 (``x[f] <= t`` / ``x[f] > t`` on the widened float32 value) or a

@@ -351,7 +351,7 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
             raise UsageError(f"{path} was distilled on {name}, an environment that "
                              f"{modules[0]} registers; run `{retry}`") from None
         raise
-    if task.continuous:  # a command tree (issue 25): its actions are the file's commands
+    if task.continuous:  # a command tree: its actions are the file's commands
         return _command_task(doc, path, task)
     if (task.feature_names, task.action_names) != (tuple(doc["feature_names"]),
                                                    tuple(doc["action_names"])):

@@ -108,7 +108,7 @@ def _distill(args: argparse.Namespace) -> int:
     task = task_for(args, args.task)
     out = check_output(args.output, (".json",))
     expert = load_expert(task, args.algo, args.checkpoint)
-    if task.continuous:  # issue 25: a regression tree, merged into named commands
+    if task.continuous:  # a regression tree, merged into named commands
         return _distill_box(task, expert, out, args)
     overrides = {"n_iterations": args.iterations if args.iterations is not None else
                  DISCRETE_ITERATIONS, "selection_episodes": args.selection_episodes}
@@ -210,7 +210,7 @@ def _refine(args: argparse.Namespace) -> int:
 
 def _refine_commands(doc: dict[str, Any], task: Any, out: Path, overrides: dict[str, Any],
                      args: argparse.Namespace) -> int:
-    """``refine`` of a command tree (issue 25): its shape and command ids stay, thresholds and
+    """``refine`` of a command tree: its shape and command ids stay, thresholds and
     command values are tuned by CMA-ES (:mod:`ibt.refine.commands`)."""
     import numpy as np
 

@@ -1,7 +1,7 @@
 """Interactive distillation of an expert with continuous actions into a regression tree.
 
 The loop of :mod:`ibt.distill.loop` with a multi-output ``DecisionTreeRegressor`` fitted on the
-expert's action vectors (issue 25): each iteration rolls out the mixed policy (per step the
+expert's action vectors: each iteration rolls out the mixed policy (per step the
 expert's action with probability beta_i, else the current tree's) until the iteration's label
 budget is spent, the expert labels every visited state, the data are aggregated, a tree is
 fitted and scored on held-out episodes; the best tree (highest mean return, then fewest nodes,

@@ -14,7 +14,7 @@ imitation-bt    1 - i/N                      resampled with p ~ max_a Q - min_a 
 
 Beyond the paper, ``imitation-bt+rel`` is Imitation-BT's setting with another tree learner:
 :func:`ibt.distill.relational.fit_relational_tree`, whose splits may be relational tests
-``w1 * x_i + w2 * x_j <= t`` where they beat every axis-aligned split by a margin (issue 26).
+``w1 * x_i + w2 * x_j <= t`` where they beat every axis-aligned split by a margin.
 A method's ``learner`` names its tree fit; the paper's four fit scikit-learn's CART.
 
 Each iteration rolls out the mixed policy (per step, the expert's action with probability

@@ -1,4 +1,4 @@
-"""A decision tree whose splits may be relational (issue 26): CART on derived features.
+"""A decision tree whose splits may be relational: CART on derived features.
 
 A :class:`RelationalTreeClassifier` is a scikit-learn tree fitted on observations augmented
 with derived columns (:class:`ibt.bt.linear.FeatureMap`), so column ``k >= n_features`` of its

@@ -287,7 +287,7 @@ def agreement_states(bt: BehaviorTree, task: Task, n_random: int = 10_000,
     every threshold's neighbours once more in a random state (conditions no region bounds);
     ``n_random`` random states from the task's box; the whole state space of a discrete task.
     """
-    if bt.relational_count:  # polytope regions (issue 26): ibt.bt.polytope.agreement_rows
+    if bt.relational_count:  # polytope regions: ibt.bt.polytope.agreement_rows
         from ibt.bt.polytope import agreement_rows
 
         random = task.sample_features(n_random, np.random.default_rng(seed))

@@ -1,4 +1,4 @@
-"""Refinement by return of command trees: Imitation-BT+ for continuous actions (issue 25).
+"""Refinement by return of command trees: Imitation-BT+ for continuous actions.
 
 A command tree (:class:`ibt.synth.commands.CommandTree`) is an axis-aligned tree whose leaves
 name one of ``k`` commands, each a vector inside the task's Box. Its return is raised by

@@ -1,4 +1,4 @@
-"""Refinement by return of relational trees (issue 26), by :func:`ibt.refine.by_return.refine`.
+"""Refinement by return of relational trees, by :func:`ibt.refine.by_return.refine`.
 
 A relational tree is an axis-aligned tree over augmented columns (observed features, then the
 derived ``w1 * x_i + w2 * x_j`` of its :class:`ibt.bt.linear.FeatureMap`). Refinement runs

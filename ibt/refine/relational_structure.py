@@ -1,4 +1,4 @@
-"""Structure search by return with relational tests (issues 22 and 26): Imitation-BT+SR.
+"""Structure search by return with relational tests: Imitation-BT+SR.
 
 :func:`ibt.refine.structure.evolve` searches a tree's splits, features, thresholds and leaves on
 return. Here it searches over *augmented* columns: the observed features and every candidate

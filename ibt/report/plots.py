@@ -42,7 +42,7 @@ METHOD_COLORS = {"bc": GREY, "dagger": "#56B4E9", "viper": "#0072B2",
                  "imitation-bt": "#D55E00", "imitation-bt+": "#E69F00",
                  "imitation-bt+s": "#000000", "decision-list": "#CC79A7", "bt-espresso": "#F0E442",
                  "re-bt-espresso": "#009E73",
-                 # relational tests (issue 26): never on a panel with the two synthesisers above
+                 # relational tests: never on a panel with the two synthesisers above
                  "imitation-bt+rel+": "#CC79A7", "imitation-bt+sr": "#009E73",
                  "imitation-bt+sr*": "#56B4E9"}
 #: the two baselines are synthesised from the BC tree: hatched like it is their source

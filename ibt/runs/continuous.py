@@ -1,4 +1,4 @@
-"""Continuous actions (issue 25), cached: distil into regression trees, merge leaves into named
+"""Continuous actions, cached: distil into regression trees, merge leaves into named
 commands, refine the command tree by return (Imitation-BT+ for continuous actions), synthesise
 every verified BT and evaluate it rolled out from its JSON document.
 
@@ -227,7 +227,7 @@ def point_bt(cfg: Config, point: BoxPoint) -> BehaviorTree:
     return BehaviorTree.from_dict(evaluate_cached(cfg, get_task(point.task), arrays)["bt"])
 
 
-#: The issue's anchors (issue 25): regression trees distilled from the SB3-zoo PPO expert by
+#: The published anchors: regression trees distilled from the SB3-zoo PPO expert by
 #: KohlerHECTOR/interpretable-rl-zoo, run by a previous session here on 50 episodes, and ICCT's
 #: DAgger tree baseline as its README reports it; a tree of L leaves has 2L - 1 nodes.
 ANCHORS: tuple[tuple[str, str, int, float], ...] = (
@@ -240,7 +240,7 @@ ANCHORS: tuple[tuple[str, str, int, float], ...] = (
     ("interpretable-rl-zoo tree, run here", "Pendulum-v1", 32, -287.1),
 )
 
-#: The issue's done-when bars: (task, at most this many leaves, at least this mean return).
+#: The done-when bars, set before the runs: (task, most leaves, least mean return).
 TARGETS: tuple[tuple[str, int, float], ...] = (
     ("LunarLanderContinuous-v3", 16, 210.0), ("Pendulum-v1", 16, -250.0),
     ("MountainCarContinuous-v0", 4, 90.0))

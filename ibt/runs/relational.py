@@ -1,4 +1,4 @@
-"""Relational trees on the front (issue 26): cached distillation, refinement and result rows.
+"""Relational trees on the front: cached distillation, refinement and result rows.
 
 ``imitation-bt+rel`` is the interactive loop in Imitation-BT's setting with the relational
 learner (:func:`ibt.distill.relational.fit_relational_tree`); ``imitation-bt+rel+`` is its tree

@@ -1,6 +1,6 @@
 """Imitation-BT+SR on the front: structure search with relational tests, then a polish.
 
-Beyond the paper (issues 22 and 26). For one task, expert, seed and leaf limit, exactly
+Beyond the paper. For one task, expert, seed and leaf limit, exactly
 Imitation-BT+S (:mod:`ibt.runs.search`: the same seed trees, budget and polish) but searched
 over the observed features *and* the relational learner's candidate columns
 (:func:`ibt.refine.relational_structure.evolve_relational`), so the two methods side by side

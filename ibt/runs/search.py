@@ -1,6 +1,6 @@
 """Imitation-BT+S on the front: structure search by return, then a polish, cached per run.
 
-Beyond the paper (issue 22). For one task, expert, seed and leaf limit:
+Beyond the paper. For one task, expert, seed and leaf limit:
 
 1. **seed trees**: Imitation-BT+'s tree at the task's budget and the best of the four paper
    methods' grid trees by their held-out selection score (a fixed set: the same cells whatever

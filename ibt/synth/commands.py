@@ -1,4 +1,4 @@
-"""Named commands: a regression tree's leaf vectors merged into a few commands (issue 25).
+"""Named commands: a regression tree's leaf vectors merged into a few commands.
 
 A regression tree for continuous actions ends in leaves that each hold an action vector. To
 read it as a BT, the leaves are merged into ``k`` commands by k-means on the leaf vectors

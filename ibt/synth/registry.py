@@ -36,7 +36,7 @@ class Synthesiser:
         return getattr(importlib.import_module(module), attribute)
 
     def __call__(self, tree: Any, task: Any, **options: Any) -> Any:
-        """The synthesis of ``tree``; a relational tree (issue 26) is synthesised on its
+        """The synthesis of ``tree``; a relational tree is synthesised on its
         augmented space and verified in observed space (:func:`ibt.synth.relational.synthesise`),
         so a user's synthesiser takes relational trees too."""
         function = self.resolve(self.function)

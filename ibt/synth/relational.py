@@ -1,4 +1,4 @@
-"""Synthesis and verification of relational trees (issue 26).
+"""Synthesis and verification of relational trees.
 
 A :class:`~ibt.distill.relational.RelationalTreeClassifier` is CART on *augmented* rows: the
 observed features followed by derived columns ``z_k = w1 * x[i] + w2 * x[j]``

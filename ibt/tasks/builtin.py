@@ -148,7 +148,7 @@ LUNARLANDER = Task(
                    **{**_ZOO_DQN_CLASSIC, "buffer_size": 100_000})),
         ("ppo", hp(1e6, 16, source=_ZOO_PPO, n_steps=1024, batch_size=64, gae_lambda=0.98,
                    gamma=0.999, n_epochs=4, ent_coef=0.01)),
-        # 1e6 steps gave 140.7 +- 132.7, below the 150 bar; 1.5e6 (the issue's limit) reaches it
+        # 1e6 steps gave 140.7 +- 132.7, below the 150 bar; 1.5e6 (the budget's limit) reaches it
         ("a2c", hp(1.5e6, 8, source=_ZOO_A2C + " (2e5 steps there)", gamma=0.995, n_steps=5,
                    learning_rate="lin_0.00083", ent_coef=1e-5)),
     ),
@@ -267,7 +267,7 @@ def _package_delivery() -> Task:
 BUILTIN: tuple[Task, ...] = (CARTPOLE, ACROBOT, MOUNTAINCAR, LUNARLANDER, CLIFFWALKING,
                              FROZENLAKE, HIGHWAY, _package_delivery())
 
-# --- continuous actions (issue 25): each action dimension is a named command ----------------
+# --- continuous actions: each action dimension is a named command ----------------
 # Hyperparameters from rl-baselines3-zoo's hyperparams/{sac,ppo}.yml (the recipes named in each
 # row); quality bars are the zoo benchmark's (benchmark.md) mean - 2 std of the same algorithm,
 # rounded down to one decimal: SAC Pendulum-v1 -157.0 +- 88.7, SAC MountainCarContinuous-v0

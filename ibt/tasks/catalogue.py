@@ -189,7 +189,7 @@ def task_from_env(gym_id: str, **kwargs: Any) -> Task:
     box: dict[str, Any] = {}
     if (isinstance(act_space, gym.spaces.Box) and len(act_space.shape) == 1
             and np.isfinite(act_space.low).all() and np.isfinite(act_space.high).all()):
-        # continuous actions (issue 25): each dimension a command, the tree merged into few
+        # continuous actions: each dimension a command, the tree merged into few
         n = act_space.shape[0]
         actions = tuple(f"u{i}" for i in range(n))
         box = {"action_low": tuple(map(float, act_space.low)),

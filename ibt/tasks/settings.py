@@ -207,7 +207,7 @@ class Clip:
 
 @dataclass(frozen=True)
 class FrontTarget:
-    """A done-when bar of Imitation-BT+ (issue 15): retention with at most this many BT nodes.
+    """A done-when bar of Imitation-BT+: retention with at most this many BT nodes.
 
     Both ``None``: no bar, the task is reported as measured."""
 
