@@ -50,9 +50,9 @@ CASES = (
          "tests.fixtures.go_to_target"),
     Case("thruster-sac", "Thruster-v0", "sac", "build/bench/agents/thruster_sac.zip",
          "bench_thruster"),
-    Case("cartpole-dqn", "CartPole-v1", "dqn"),
-    Case("mountaincar-dqn", "MountainCar-v0", "dqn"),
-    Case("pendulum-sac", "Pendulum-v1", "sac"),
+    Case("cartpole-dqn", "CartPole-v1", "dqn", full=False),  # full ladders: long episodes
+    Case("mountaincar-dqn", "MountainCar-v0", "dqn", full=False),
+    Case("pendulum-sac", "Pendulum-v1", "sac", full=False),
     Case("lunarlander-ppo", "LunarLander-v3", "ppo", time="30m", full=False),
     Case("lunarlander-dqn", "LunarLander-v3", "dqn", time="30m", full=False),
 )
@@ -151,18 +151,22 @@ def main(names: list[str]) -> None:
     if unknown:
         raise SystemExit(f"unknown cases {sorted(unknown)}; known: {[c.name for c in CASES]}")
     train_user_agents()
-    rows = []
-    for case in chosen:
-        rows.append(run(case))
-        print(rows[-1], flush=True)
-    frame = pd.DataFrame(rows)
-    if CSV.exists():
-        old = pd.read_csv(CSV)
-        frame = pd.concat([old[~old["case"].isin(frame["case"])], frame], ignore_index=True)
-    order = {c.name: i for i, c in enumerate(CASES)}
-    frame = frame.sort_values("case", key=lambda s: s.map(order)).reset_index(drop=True)
+    for case in chosen:  # each row is written as soon as it is measured
+        row = run(case)
+        print(row, flush=True)
+        write_row(row)
+
+
+def write_row(row: dict[str, object]) -> None:
+    """``row`` into the CSV in place of an earlier row of its case, in :data:`CASES` order."""
     from ibt.files import atomic_write_text
 
+    frame = pd.DataFrame([row])
+    if CSV.exists():
+        old = pd.read_csv(CSV)
+        frame = pd.concat([old[old["case"] != row["case"]], frame], ignore_index=True)
+    order = {c.name: i for i, c in enumerate(CASES)}
+    frame = frame.sort_values("case", key=lambda s: s.map(order)).reset_index(drop=True)
     atomic_write_text(CSV, frame.to_csv(index=False))
 
 
