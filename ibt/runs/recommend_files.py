@@ -115,7 +115,7 @@ def draw_front(rec: Recommendation, path: Path) -> None:
     ax.set_xlabel("BT nodes (smallest verified BT of each tree)")
     ax.set_ylabel("retention, % (0 random, 100 agent)")
     ax.set_title(f"{rec.task.name}, {rec.algo} agent: choice episodes", fontsize=10)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="best")  # the corner that hides the fewest candidates
     fig.tight_layout()
     with atomic_target(path) as tmp:
         fig.savefig(tmp, format="png")
