@@ -44,7 +44,10 @@ TREE_STEM = re.compile(r"(_bt|_trees?|espresso|imitation-bt)$")
 
 
 def _committed_pngs() -> list[Path]:
-    return sorted(FIGURES_DIR.rglob("*.png"))
+    """Every committed figure we draw (the book's screenshots are a browser's rendering of a
+    page, shown at their own width, not figures of ours)."""
+    return sorted(p for p in FIGURES_DIR.rglob("*.png")
+                  if p.relative_to(FIGURES_DIR).parts[0] != "book")
 
 
 # -------------------------------------------------------------------- the committed figures
