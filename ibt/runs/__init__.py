@@ -1,5 +1,6 @@
-"""Runs and their artifacts: the content-addressed cache, the paper grid, the front, the
-cached steps notebooks call."""
+"""Runs and their artifacts: the engine of cached stages and the pipeline's anytime ladder
+(``engine``), the content-addressed cache, the paper grid, the front, the studies notebooks
+call, and ``pipeline``'s recommendation and files."""
 
 
 def __getattr__(name: str) -> object:
