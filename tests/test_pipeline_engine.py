@@ -5,15 +5,18 @@ agents given as ``MODULE:FUNCTION`` callables, all under the smoke budget."""
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import sys
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from ibt.cli import main
 from ibt.runs.engine import stages
 from ibt.runs.engine.agent import callable_agent, sb3_agent
-from ibt.runs.engine.ladder import Deadline, Settings, run_ladder
+from ibt.runs.engine.ladder import Deadline, Settings, bisection, run_ladder
 from ibt.runs.recommend import choose, parse_budget, recommend
 from tests.test_recommend import FILES, _candidate
 
@@ -53,11 +56,45 @@ def test_a_stop_between_steps_keeps_what_was_done(agents, tmp_path):
     ladder = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
                         on_step=lambda done, step: "enough" if done.steps else None)
     assert ladder.stopped == "enough" and ladder.steps == ["distil axis at 4 leaves"]
-    assert "refine axis at 4 leaves" in ladder.skipped and len(ladder.candidates) == 1
+    assert "distil axis at 8 leaves" in ladder.skipped and len(ladder.candidates) == 1
     ticks = iter([0.0, 5.0])  # the deadline passes before the first step
     late = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
                       deadline=Deadline(1.0, clock=lambda: next(ticks, 5.0)))
     assert late.stopped == "time" and late.candidates == []
+
+
+@given(st.lists(st.integers(1, 10_000), min_size=1, max_size=12, unique=True),
+       st.integers(0, 12))
+def test_the_searches_bisect_the_rungs_for_the_smallest_that_keeps(rungs, first_kept):
+    """Where keeping the target is monotone in the leaf limit, the probes find the smallest
+    rung that keeps it (none: every probe failed) in at most ceil(log2(n + 1)) searches."""
+    rungs = sorted(rungs)
+    kept = set(rungs[first_kept:])
+    probed: list[int] = []
+    bisection(rungs, lambda r: probed.append(r) or r in kept)
+    assert len(probed) <= math.ceil(math.log2(len(rungs) + 1))
+    assert min(kept & set(probed), default=None) == min(kept, default=None)
+
+
+def test_a_step_that_would_end_past_the_deadline_is_not_started(agents, tmp_path,
+                                                                 monkeypatch):
+    import ibt
+
+    now = [0.0]
+    distil = stages.distil
+
+    def slow_distil(*args, **kwargs):  # each distillation takes 8 s of the fake clock
+        now[0] += 8.0
+        return distil(*args, **kwargs)
+
+    monkeypatch.setattr(stages, "distil", slow_distil)
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    ladder = run_ladder(cfg, _line_agent(agents), Settings(keep=1.0, rungs=(4, 8), restarts=1),
+                        agent_mean=0.0, random_mean=-10.0,
+                        deadline=Deadline(10.0, clock=lambda: now[0]))
+    assert ladder.stopped == "time" and ladder.steps == ["distil axis at 4 leaves"]
+    assert ladder.skipped[0] == "distil axis at 8 leaves"
+    assert 'stopped before "distil axis at 8 leaves"' in ladder.notes[0]
 
 
 def test_ctrl_c_after_the_first_candidate_leaves_a_complete_marked_report(
@@ -181,3 +218,16 @@ def test_a_box_agent_gets_the_six_files_with_named_commands(thruster, tmp_path, 
     assert doc["commands"]["dimensions"] == ["a0"] or len(doc["commands"]["dimensions"]) == 1
     report = (out / "report.md").read_text()
     assert "structure search is for discrete actions" in report
+
+
+def test_a_rungs_learners_distilled_on_two_cores_give_the_same_trees(agents, tmp_path):
+    from ibt.tasks.catalogue import resolve_task
+
+    agent = sb3_agent(resolve_task("ToyCart-v0"), "ppo", agents / "cart.zip")
+    run = dict(budget=parse_budget("smoke"), keep=1.01, leaf_limits=(4,), restarts=1,
+               progress=False, env_modules=("tests.fixtures.toy_cart",))
+    one = recommend(agent, cache_dir=tmp_path / "one", n_jobs=1, **run)
+    two = recommend(agent, cache_dir=tmp_path / "two", n_jobs=2, **run)
+    assert one.ladder.steps[:2] == ["distil axis at 4 leaves", "distil relational at 4 leaves"]
+    assert one.ladder.steps == two.ladder.steps
+    assert [c.bt.to_json() for c in one.candidates] == [c.bt.to_json() for c in two.candidates]

@@ -242,7 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="smoke (seconds), a scale of every step's episode budget such as 2x, "
                     "or refinement episodes per tree such as 40000 (default 1x)")
     pl.add_argument("--leaves", type=_leaf_limits, default=(4, 8, 16, 32), metavar="L,L,...",
-                    help="leaf limits, tried smallest first (default 4,8,16,32)")
+                    help="leaf limits (default 4,8,16,32): distilled smallest first, searched "
+                         "by bisection")
     pl.add_argument("--episodes", type=EPISODES, default=None,
                     help="held-out episodes per evaluation (default: 100; 5 with --budget smoke)")
     pl.add_argument("--seed", type=SEED, default=0)

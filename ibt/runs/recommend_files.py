@@ -176,10 +176,13 @@ def ladder_text(rec: Recommendation) -> list[str]:
                   "on the machine's speed; a rerun with a longer `--time` resumes from the "
                   "cache and, once the ladder finishes, gives the same files.", ""]
     else:
-        lines += ["The ladder finished within its time budget: leaf limits smallest first, "
-                  "distilled then refined trees at each (axis-aligned, then relational), and the "
-                  "structure search by return only below the first limit whose best BT kept the "
-                  "target (at every limit when none did).", ""]
+        lines += ["The ladder finished within its time budget: trees distilled at each leaf "
+                  "limit, smallest first (axis-aligned, then relational), up to the first limit "
+                  "whose best BT kept the target; that limit's trees refined by return; and the "
+                  "structure search by return below it (at every limit when none kept the "
+                  "target) in the order of a binary search for the smallest limit whose "
+                  "searched BT keeps it. A Box task's trees are distilled then refined at each "
+                  "limit instead.", ""]
     lines += [f"Steps done: {', '.join(ladder.steps)}.", ""]
     for c in rec.candidates:
         if c.search is not None:

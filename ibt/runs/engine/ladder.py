@@ -1,29 +1,38 @@
 """The anytime ladder: smallest leaf limit first, stopped by the target, a deadline or a signal.
 
-Two passes over the leaf limits (the rungs), in increasing order:
+With the structure search (discrete actions), over the leaf limits (the rungs):
 
-1. **imitation**: at each rung, for each learner (axis-aligned, then relational at the same
-   limit; a Box task's regression learner), distil, then refine by return. The ladder stops
-   at the first rung whose best BT keeps the target.
-2. **structure search** (discrete actions): at each rung below that one (every rung when no
-   BT kept the target), the search by return from that rung's distilled and refined trees,
-   with restarts; it stops at the first rung whose searched BT keeps the target.
+1. **distil** at each rung in increasing order, each learner (axis-aligned, then relational
+   at the same limit); stop at the first rung whose best BT keeps the target.
+2. **refine** that rung's trees by return: pruning may shrink the BT that kept the target.
+3. **search** by return (the structure search, with restarts, then polished: it refines its
+   winner) at the rungs below that one, every rung when none kept the target, in the order of
+   a binary search for the smallest rung whose searched BT keeps the target.
 
-Imitation runs first over all rungs because it is cheap next to a search: on a task where a
-small tree imitates the agent well the answer comes in seconds, and where none does, a search
-at the smallest rung cannot spend the whole budget before the larger rungs were even tried.
+Distillation is cheap next to the by-return steps, so on a task where a small tree imitates
+the agent well the answer comes in seconds. Refinement is not run before a search: the search
+polishes its own winner, and on a task of slow episodes one refinement at the task's budget
+costs more than a search restart (LunarLander: 80,000 episodes, about 27 minutes on one
+core). A search costs the same episodes at every rung, so a binary search reaches the middle
+of the ladder in one search where the smallest-first order would spend the budget on the
+smallest rungs. The relational search runs where relational tests are on: its columns are
+the observed features and the relational candidates, so it covers the axis-aligned trees too.
+
+Without the search (a Box task's regression trees, or ``search=False``) each rung is
+distilled then refined, smallest first, up to the first rung that keeps the target.
 
 The ladder is anytime: between steps (each one cached whole) it checks the deadline and the
-caller's ``on_step`` callback; Ctrl-C or SIGTERM inside a step ends that step unfinished
-(nothing of it is cached) and the ladder returns what it has, marked as stopped. A rerun with
-a longer deadline resumes from the cache.
+caller's ``on_step`` callback, and it does not start a step when the longest step of its kind
+so far took longer than the time left (it would run past the budget); Ctrl-C or SIGTERM inside
+a step ends that step unfinished (nothing of it is cached) and the ladder returns what it has,
+marked as stopped. A rerun with a longer deadline resumes from the cache.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
@@ -31,6 +40,7 @@ from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
 from ibt.runs.engine import stages
 from ibt.runs.engine.agent import Agent
+from ibt.runs.engine.parallel import parallel_map
 from ibt.signals import STOP_SIGNALS, stop_reason
 
 
@@ -95,6 +105,10 @@ class Deadline:
     def elapsed(self) -> float:
         return self.clock() - self.start
 
+    def left(self) -> float:
+        """Seconds left (infinite without a limit)."""
+        return float("inf") if self.seconds is None else self.seconds - self.elapsed()
+
 
 @dataclass(frozen=True)
 class Settings:
@@ -154,16 +168,26 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     out = Ladder()
     learners = learners_of(agent, settings.relational)
     choice = stages.held_out(cfg.final_episodes, 0)
-    sources: dict[tuple[int, str], list[Any]] = {}
+    took: dict[str, float] = {}  # each kind of step's longest wall time (distil, refine, search)
+    running: list[str] = []  # the step under way (what a signal cuts short)
 
     def step(name: str, make: Callable[[], Any], leaves: int, stage: str, learner: str,
              info: Any = None) -> Any:
         if deadline.passed():
             raise Stopped("time")
+        kind = name.split()[0]
+        left = deadline.left()
+        if kind in took and took[kind] > left:
+            out.notes.append(f"the ladder stopped before \"{name}\": the longest {kind} step "
+                             f"took {took[kind]:.0f} s and {left:.0f} s of the budget were left")
+            raise Stopped("time")
         reason = on_step(out, name) if on_step is not None else None
         if reason:
             raise Stopped(reason)
+        began, running[:] = deadline.clock(), [name]
         made = make()
+        took[kind] = max(took.get(kind, 0.0), deadline.clock() - began)
+        running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
         bts = stages.synthesise(cfg, agent, tree, settings.seed)
         ret = stages.measure(cfg, agent, tree, bts, choice)
@@ -175,46 +199,112 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
 
     plan = _plan(settings, learners, agent.continuous)
     try:
-        found = None
-        for leaves in settings.rungs:
-            for learner in learners:
-                tag = f"{learner} at {leaves} leaves"
-                tree = step(f"distil {tag}", partial(stages.distil, cfg, agent, leaves,
-                                                     settings.seed, learner),
-                            leaves, "distilled", learner)
-                refined = step(f"refine {tag}", partial(
-                    stages.refine, cfg, agent, tree, settings.seed, settings.scale,
-                    settings.refine_episodes), leaves, "refined", learner)
-                sources[leaves, learner] = _distinct([refined, tree])
-            if _kept_at(out, leaves, settings) and not settings.full:
-                found = leaves
-                break
         if settings.search and not agent.continuous:
-            for leaves in settings.rungs:
-                if found is not None and leaves >= found and not settings.full:
-                    break
-                if (leaves, learners[0]) not in sources:
-                    break  # imitation stopped below this rung
-                if _kept_at(out, leaves, settings) and not settings.full:
-                    continue
-                for learner in learners:
-                    step(f"search {learner} at {leaves} leaves", partial(
-                        stages.search, cfg, agent, sources[leaves, "axis"], leaves,
-                        settings.seed, restarts=settings.restarts,
-                        relational=learner == "relational", scale=settings.scale,
-                        n_jobs=settings.n_jobs, env_modules=settings.env_modules),
-                         leaves, "searched", learner)
-                if _kept_at(out, leaves, settings) and not settings.full:
-                    break
-        elif agent.continuous:
-            out.notes.append("the structure search is for discrete actions: a Box task's "
-                             "trees are distilled and refined (commands and thresholds)")
+            _search_ladder(out, step, cfg, agent, settings, learners)
+        else:
+            _imitation_ladder(out, step, cfg, agent, settings, learners)
+            if agent.continuous:
+                out.notes.append("the structure search is for discrete actions: a Box task's "
+                                 "trees are distilled and refined (commands and thresholds)")
     except Stopped as stop:
         out.stopped = str(stop)
     except STOP_SIGNALS as err:  # Ctrl-C or SIGTERM inside a step: that step is not cached
         out.stopped = stop_reason(err)
-    out.skipped = [s for s in plan if s not in out.steps] if out.stopped else []
+    if out.stopped:
+        out.skipped = running + [s for s in plan if s not in out.steps and s not in running]
     return out
+
+
+def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
+                      settings: Settings, learners: tuple[str, ...]) -> None:
+    """Without the structure search (a Box task, or ``search=False``): at each rung, distil
+    then refine each learner; stop at the first rung that keeps the target."""
+    for leaves in settings.rungs:
+        for learner in learners:
+            tag = f"{learner} at {leaves} leaves"
+            tree = step(f"distil {tag}", partial(stages.distil, cfg, agent, leaves,
+                                                 settings.seed, learner),
+                        leaves, "distilled", learner)
+            step(f"refine {tag}", partial(stages.refine, cfg, agent, tree, settings.seed,
+                                          settings.scale, settings.refine_episodes),
+                 leaves, "refined", learner)
+        if _kept_at(out, leaves, settings) and not settings.full:
+            return
+
+
+def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
+                   settings: Settings, learners: tuple[str, ...]) -> None:
+    """With the structure search: distil at each rung (smallest first, stopping at the first
+    that keeps the target); refine the trees of that rung (pruning may shrink its BT); then
+    search the rungs below it (every rung when none kept the target) in bisection order."""
+    distilled: dict[int, dict[str, Any]] = {}
+    kept = None
+    for leaves in settings.rungs:
+        first = partial(_distil_rung, cfg, agent, leaves, settings, learners)
+        distilled[leaves] = {
+            learner: step(f"distil {learner} at {leaves} leaves", first if i == 0 else partial(
+                stages.distil, cfg, agent, leaves, settings.seed, learner),
+                leaves, "distilled", learner)
+            for i, learner in enumerate(learners)}
+        if _kept_at(out, leaves, settings) and not settings.full:
+            kept = leaves
+            break
+    for leaves in settings.rungs if settings.full else [kept] if kept else []:
+        for learner in learners:
+            step(f"refine {learner} at {leaves} leaves", partial(
+                stages.refine, cfg, agent, distilled[leaves][learner], settings.seed,
+                settings.scale, settings.refine_episodes), leaves, "refined", learner)
+    below = [r for r in settings.rungs if r in distilled and (kept is None or r < kept)]
+    learner = search_learner(learners)
+    largest = max(distilled)
+
+    def probe(leaves: int) -> bool:
+        sources = _distinct([distilled[leaves]["axis"], distilled[largest]["axis"]])
+        step(f"search {learner} at {leaves} leaves", partial(
+            stages.search, cfg, agent, sources, leaves, settings.seed,
+            restarts=settings.restarts, relational=learner == "relational",
+            scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules),
+            leaves, "searched", learner)
+        return _kept_at(out, leaves, settings)
+
+    if settings.full:
+        for leaves in below:
+            probe(leaves)
+        return
+    bisection(below, probe)
+
+
+def _distil_rung(cfg: Config, agent: Agent, leaves: int, settings: Settings,
+                 learners: tuple[str, ...]) -> Any:
+    """The first learner's tree at ``leaves``, its other learners' distilled alongside on the
+    local cores (their steps then read them from the cache)."""
+    if settings.n_jobs > 1 and len(learners) > 1:
+        quiet = replace(cfg, progress=False)
+        parallel_map(stages.distil, [(quiet, agent, leaves, settings.seed, learner,
+                                      settings.env_modules) for learner in learners],
+                     n_jobs=min(settings.n_jobs, len(learners)))
+    return stages.distil(cfg, agent, leaves, settings.seed, learners[0])
+
+
+def search_learner(learners: tuple[str, ...]) -> str:
+    """The relational search where relational tests are on: its columns are the observed
+    features and the relational candidates, so it searches every axis-aligned tree too, at
+    the same budget; one search a rung instead of two."""
+    return "relational" if "relational" in learners else "axis"
+
+
+def bisection(rungs: list[int], probe: Callable[[int], bool]) -> None:
+    """A binary search for the smallest rung whose probe keeps the target (``probe(rung)``
+    runs it and says whether it kept). A search costs the same episodes at every rung, so on a
+    task whose episodes are slow (LunarLander: 10-20 minutes a search on two cores) a budget
+    of a few searches reaches the middle of the ladder instead of its smallest rungs."""
+    lo, hi = 0, len(rungs) - 1
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        if probe(rungs[mid]):
+            hi = mid - 1
+        else:
+            lo = mid + 1
 
 
 def _retention(mean: float, agent_mean: float, random_mean: float) -> float:
@@ -238,9 +328,9 @@ def _distinct(trees: list[Any]) -> list[Any]:
 
 def _plan(settings: Settings, learners: tuple[str, ...], continuous: bool) -> list[str]:
     """Every step the ladder could take, in order (what a stop leaves undone)."""
-    names = [f"{verb} {learner} at {leaves} leaves" for leaves in settings.rungs
-             for learner in learners for verb in ("distil", "refine")]
     if settings.search and not continuous:
-        names += [f"search {learner} at {leaves} leaves" for leaves in settings.rungs
-                  for learner in learners]
-    return names
+        return [f"distil {learner} at {leaves} leaves" for leaves in settings.rungs
+                for learner in learners] + [
+            f"search {search_learner(learners)} at {leaves} leaves" for leaves in settings.rungs]
+    return [f"{verb} {learner} at {leaves} leaves" for leaves in settings.rungs
+            for learner in learners for verb in ("distil", "refine")]

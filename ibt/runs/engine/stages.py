@@ -190,9 +190,12 @@ def distillation(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
                            codec="distillation", refresh=cfg.refresh)
 
 
-def distil(cfg: Config, agent: Agent, leaves: int, seed: int, learner: str) -> Any:
+def distil(cfg: Config, agent: Agent, leaves: int, seed: int, learner: str,
+           env_modules: tuple[str, ...] = ()) -> Any:
     """The distilled tree at ``leaves``: a classifier (``axis``, ``relational``) or, on a Box
-    task, command arrays (``box``: regression tree, then its leaves merged into commands)."""
+    task, command arrays (``box``: regression tree, then its leaves merged into commands).
+    Runs in a worker process too (the user's environment modules are imported there first)."""
+    _import_modules(env_modules)
     run = distillation(cfg, agent, seed, learner, max_leaf_nodes=leaves)
     if learner == "box":
         from ibt.refine.commands import CommandArrays
