@@ -41,6 +41,8 @@ class Case:
     env_module: str | None = None
     time: str = "10m"
     full: bool = True  # also climb the whole ladder (the stop rule's check)
+    leaves: str | None = None  # --leaves (default: the pipeline's)
+    confirm: int = 0  # also evaluate the recommended BT on this many further fresh episodes
 
 
 CASES = (
@@ -53,8 +55,13 @@ CASES = (
     Case("cartpole-dqn", "CartPole-v1", "dqn", full=False),  # full ladders: long episodes
     Case("mountaincar-dqn", "MountainCar-v0", "dqn", full=False),
     Case("pendulum-sac", "Pendulum-v1", "sac", full=False),
-    Case("lunarlander-ppo", "LunarLander-v3", "ppo", time="30m", full=False),
-    Case("lunarlander-dqn", "LunarLander-v3", "dqn", time="30m", full=False),
+    Case("lunarlander-ppo", "LunarLander-v3", "ppo", time="30m", full=False, confirm=1000),
+    Case("lunarlander-dqn", "LunarLander-v3", "dqn", time="30m", full=False, confirm=1000),
+    # the best published LunarLander tree's size (22 leaves)
+    Case("lunarlander-ppo-22", "LunarLander-v3", "ppo", time="60m", full=False, leaves="22",
+         confirm=1000),
+    Case("lunarlander-dqn-22", "LunarLander-v3", "dqn", time="60m", full=False, leaves="22",
+         confirm=1000),
 )
 
 
@@ -97,6 +104,8 @@ def run(case: Case) -> dict[str, object]:
         argv += ["--checkpoint", str(ROOT / case.checkpoint)]
     if case.env_module:
         argv += ["--env-module", case.env_module]
+    if case.leaves:
+        argv += ["--leaves", case.leaves]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(OUT)])}
     load = os.getloadavg()[0]
     start = time.perf_counter()
@@ -106,7 +115,8 @@ def run(case: Case) -> dict[str, object]:
     match = LINE.search(said)
     row: dict[str, object] = {
         "case": case.name, "task": case.task, "algo": case.algo,
-        "time_limit": case.time, "wall_s": round(wall, 1), "exit": done.returncode,
+        "time_limit": case.time, "leaves": case.leaves or "default", "wall_s": round(wall, 1),
+        "exit": done.returncode,
         "bt_nodes": int(match.group(1)) if match else None,
         "retention_confirmed": float(match.group(2)) if match else None,
         "met": (match.group(3) == "meets") if match else None,
@@ -116,7 +126,47 @@ def run(case: Case) -> dict[str, object]:
         row["error"] = said.strip().splitlines()[-1] if said.strip() else "no output"
     if case.full and match:
         row.update(full_ladder(case, out / "cache", int(match.group(1))))
+    if match:
+        row.update(search_speed(out / "cache"))
+    if case.confirm and match:
+        row.update(confirm(case, out / "bt.json", case.confirm))
     return row
+
+
+def search_speed(cache: Path) -> dict[str, object]:
+    """The run's structure searches' stepping rate against random stepping measured in the
+    same process (each restart's record holds both): the lowest and the mean ratio."""
+    from ibt.runs.cache import read_entry
+
+    ratios = []
+    for entry in sorted(cache.glob("evolve*/*/")):
+        record = read_entry(entry, "evolution")
+        if record.random_steps_per_second > 0:
+            ratios.append(record.steps_per_second / record.random_steps_per_second)
+    if not ratios:
+        return {}
+    return {"search_restarts": len(ratios), "search_speed_vs_random_min": round(min(ratios), 2),
+            "search_speed_vs_random_mean": round(sum(ratios) / len(ratios), 2)}
+
+
+def confirm(case: Case, bt_file: Path, n: int) -> dict[str, object]:
+    """The recommended BT's mean return on ``n`` fresh episodes (seeds after the pipeline's
+    choice and confirmation blocks), and on the final-evaluation protocol's first ``n`` seeds,
+    the episodes of the committed studies and of the published trees run here (of which the
+    pipeline's 100 choice episodes are the first 100)."""
+    from ibt.bt.json_io import load_json
+    from ibt.evaluate.policies import BTPolicy
+    from ibt.evaluate.rollouts import FINAL_SEED_BASE, final_seeds, rollout
+    from ibt.tasks.catalogue import resolve_task
+
+    task = resolve_task(case.task)
+    bt = load_json(bt_file)
+    fresh = rollout(task, BTPolicy(task, bt).act, [FINAL_SEED_BASE + n + i for i in range(n)])
+    protocol = rollout(task, BTPolicy(task, bt).act, final_seeds(n))
+    return {"confirm_episodes": n, "confirm_mean": round(fresh.mean, 1),
+            "confirm_std": round(fresh.std, 1),
+            "confirm_share_200": round(float((fresh.returns >= 200).mean()), 3),
+            "protocol_mean": round(protocol.mean, 1)}
 
 
 def full_ladder(case: Case, cache: Path, chosen_nodes: int) -> dict[str, object]:
@@ -159,15 +209,19 @@ def main(names: list[str]) -> None:
 
 def write_row(row: dict[str, object]) -> None:
     """``row`` into the CSV in place of an earlier row of its case, in :data:`CASES` order."""
+    import fcntl
+
     from ibt.files import atomic_write_text
 
-    frame = pd.DataFrame([row])
-    if CSV.exists():
-        old = pd.read_csv(CSV)
-        frame = pd.concat([old[old["case"] != row["case"]], frame], ignore_index=True)
-    order = {c.name: i for i, c in enumerate(CASES)}
-    frame = frame.sort_values("case", key=lambda s: s.map(order)).reset_index(drop=True)
-    atomic_write_text(CSV, frame.to_csv(index=False))
+    with open(OUT / "csv.lock", "w") as lock:  # two benchmarks may end together
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        frame = pd.DataFrame([row])
+        if CSV.exists():
+            old = pd.read_csv(CSV)
+            frame = pd.concat([old[old["case"] != row["case"]], frame], ignore_index=True)
+        order = {c.name: i for i, c in enumerate(CASES)}
+        frame = frame.sort_values("case", key=lambda s: s.map(order)).reset_index(drop=True)
+        atomic_write_text(CSV, frame.to_csv(index=False))
 
 
 if __name__ == "__main__":
