@@ -2,6 +2,7 @@
 
     python -m tests.bench_pipeline                     # every case (LunarLander: an hour)
     python -m tests.bench_pipeline thermostat cartpole # some cases
+    IBT_BENCH_JOBS=1 python -m tests.bench_pipeline lunarlander-dqn  # one process (--jobs 1)
 
 Each case runs ``python -m ibt pipeline`` in a subprocess with a fresh cache (what a new user
 meets), timed as a whole; its row goes into ``data/results/pipeline_bench.csv`` (rows of other
@@ -106,6 +107,9 @@ def run(case: Case) -> dict[str, object]:
         argv += ["--env-module", case.env_module]
     if case.leaves:
         argv += ["--leaves", case.leaves]
+    jobs = os.environ.get("IBT_BENCH_JOBS")  # fewer processes, e.g. two benchmarks at once
+    if jobs:
+        argv += ["--jobs", jobs]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(OUT)])}
     load = os.getloadavg()[0]
     start = time.perf_counter()
@@ -121,6 +125,7 @@ def run(case: Case) -> dict[str, object]:
         "retention_confirmed": float(match.group(2)) if match else None,
         "met": (match.group(3) == "meets") if match else None,
         "stopped_by_time": "--time budget ended" in said, "cpus": os.cpu_count(),
+        "jobs": int(jobs) if jobs else os.cpu_count(),
         "load_before": round(load, 2)}
     if not match:
         row["error"] = said.strip().splitlines()[-1] if said.strip() else "no output"
