@@ -231,3 +231,17 @@ def test_a_rungs_learners_distilled_on_two_cores_give_the_same_trees(agents, tmp
     assert one.ladder.steps[:2] == ["distil axis at 4 leaves", "distil relational at 4 leaves"]
     assert one.ladder.steps == two.ladder.steps
     assert [c.bt.to_json() for c in one.candidates] == [c.bt.to_json() for c in two.candidates]
+
+
+def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents, tmp_path):
+    import ibt
+
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    agent = _line_agent(agents)
+    sources = [stages.distil(cfg, agent, 4, 0, "axis")]
+    rounds: list[float] = []
+    _, cut = stages.search(cfg, agent, sources, 4, 0, restarts=3,
+                           next_round=lambda seconds: rounds.append(seconds) and False)
+    assert cut.seeds == (0,) and len(rounds) == 1 and len(cut.choice_means) == 1
+    _, whole = stages.search(cfg, agent, sources, 4, 0, restarts=3)
+    assert whole.seeds == (0, 1, 2) and whole.choice_means[0] == cut.choice_means[0]

@@ -200,7 +200,7 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     plan = _plan(settings, learners, agent.continuous)
     try:
         if settings.search and not agent.continuous:
-            _search_ladder(out, step, cfg, agent, settings, learners)
+            _search_ladder(out, step, cfg, agent, settings, learners, deadline)
         else:
             _imitation_ladder(out, step, cfg, agent, settings, learners)
             if agent.continuous:
@@ -233,7 +233,7 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
 
 
 def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
-                   settings: Settings, learners: tuple[str, ...]) -> None:
+                   settings: Settings, learners: tuple[str, ...], deadline: Deadline) -> None:
     """With the structure search: distil at each rung (smallest first, stopping at the first
     that keeps the target); refine the trees of that rung (pruning may shrink its BT); then
     search the rungs below it (every rung when none kept the target) in bisection order."""
@@ -263,8 +263,15 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         step(f"search {learner} at {leaves} leaves", partial(
             stages.search, cfg, agent, sources, leaves, settings.seed,
             restarts=settings.restarts, relational=learner == "relational",
-            scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules),
+            scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules,
+            next_round=lambda seconds: seconds <= deadline.left()),
             leaves, "searched", learner)
+        info = out.candidates[-1].search
+        done = len(info.seeds) if info is not None else settings.restarts
+        if done < settings.restarts:
+            out.notes.append(f"the search at {leaves} leaves ran {done} of its "
+                             f"{settings.restarts} restarts: the last round took longer than "
+                             "the time left")
         return _kept_at(out, leaves, settings)
 
     if settings.full:

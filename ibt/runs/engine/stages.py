@@ -24,6 +24,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -385,10 +387,16 @@ def _import_modules(modules: tuple[str, ...]) -> None:
 
 def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int, *,
            restarts: int = 1, relational: bool = False, scale: float = 1.0,
-           n_jobs: int = 1, env_modules: tuple[str, ...] = ()) -> tuple[Any, SearchInfo]:
+           n_jobs: int = 1, env_modules: tuple[str, ...] = (),
+           next_round: Callable[[float], bool] | None = None) -> tuple[Any, SearchInfo]:
     """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
     ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes, the
-    best polished (CMA-ES on thresholds, then free pruning) and returned."""
+    best polished (CMA-ES on thresholds, then free pruning) and returned.
+
+    The restarts run in rounds of ``n_jobs`` (each restart cached on its own);
+    ``next_round(seconds)``, given the last round's wall time, says whether another round may
+    start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
+    with more time adds the others from the cache."""
     from ibt.evaluate.policies import TreePolicy
     from ibt.refine.relational import best_tree
     from ibt.runs.engine.parallel import parallel_map
@@ -397,10 +405,17 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
 
     task = agent.task
     config = search_config(cfg, task, leaves, scale)
-    seeds = tuple(seed + r for r in range(restarts))
     quiet = replace(cfg, progress=cfg.progress and restarts == 1)
-    records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
-                                         env_modules) for s in seeds], n_jobs=n_jobs)
+    width = max(1, min(n_jobs, restarts))
+    records: list[Any] = []
+    while len(records) < restarts:
+        batch = range(seed + len(records), seed + min(restarts, len(records) + width))
+        began = time.monotonic()
+        records += parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
+                                              env_modules) for s in batch], n_jobs=n_jobs)
+        if next_round is not None and not next_round(time.monotonic() - began):
+            break
+    seeds = tuple(seed + r for r in range(len(records)))
     if relational:
         from ibt.refine.relational_structure import winner
 
