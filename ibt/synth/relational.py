@@ -162,16 +162,8 @@ def verify_relational(bt: BehaviorTree, tree: Any, task: Task, *, seed: int = 0,
     """Raise :class:`~ibt.synth.imitation.NotEquivalentError` unless ``bt`` decides as the
     relational ``tree`` (its ``predict`` on observed rows) on every state of
     :func:`verification_states`; returns how many states were checked."""
-    from ibt.synth.imitation import NotEquivalentError
+    from ibt.synth.imitation import check_agreement
 
-    check = verification_states(tree, task, n_random=n_random, seed=seed)
-    states = check.states
-    expected = np.asarray(tree.predict(states)).astype(np.int64)
-    got = bt.decide(states)
-    bad = np.flatnonzero(expected != got)
-    if len(bad):
-        i = bad[0]
-        raise NotEquivalentError(
-            f"BT disagrees with its relational tree on {len(bad)} of {len(states)} states; "
-            f"first: {states[i].tolist()} -> BT {got[i]}, tree {expected[i]}")
-    return len(states)
+    states = verification_states(tree, task, n_random=n_random, seed=seed).states
+    return check_agreement(bt, states, np.asarray(tree.predict(states)).astype(np.int64),
+                           "relational tree")
