@@ -34,7 +34,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
@@ -64,15 +64,21 @@ def task_config(task: Task, **overrides: Any) -> RefineConfig:
     return config
 
 
+Candidate = TypeVar("Candidate")
+
+
 @dataclass
-class Refinement:
-    """A refinement's record: each stage's result and the chosen tree."""
+class RefinementRecord(Generic[Candidate]):
+    """A refinement run's record, whatever its candidates are (:class:`TreeArrays` here,
+    command trees in :mod:`ibt.refine.commands`): each stage's result and the chosen one. The
+    fields, in this order, are the cached payloads' (the ``refinement`` codec, the command
+    refinement's JSON document)."""
 
     task: str
     seed: int
     config: dict[str, Any]
     stages: list[dict[str, Any]] = field(default_factory=list)
-    candidates: list[TreeArrays] = field(default_factory=list)  # [source, after each stage]
+    candidates: list[Candidate] = field(default_factory=list)  # [source, after each stage]
     best_index: int = 0
     selection_means: list[float] = field(default_factory=list)  # per candidate, held out
     episodes: int = 0  # refinement episodes used (selection episodes not included)
@@ -81,8 +87,13 @@ class Refinement:
     cpu_seconds: float = 0.0  # this process's CPU time (one core), selection included
 
     @property
-    def best(self) -> TreeArrays:
+    def best(self) -> Candidate:
         return self.candidates[self.best_index]
+
+
+@dataclass
+class Refinement(RefinementRecord[TreeArrays]):
+    """A tree refinement's record: each stage's result and the chosen tree."""
 
     @property
     def best_tree(self) -> DecisionTreeClassifier:
@@ -406,8 +417,11 @@ def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineCo
     return [float(episodes.score(p, held_out, count=False).mean()) for p in populations]
 
 
-def close_record(record: Any, scores: list[float], episodes: _Episodes, start: float,
-                 cpu_start: float) -> Any:
+Record = TypeVar("Record", bound=RefinementRecord)
+
+
+def close_record(record: Record, scores: list[float], episodes: _Episodes, start: float,
+                 cpu_start: float) -> Record:
     """A refinement's record completed: its selection means and what the run cost (episodes,
     steps, wall and CPU seconds since ``start``/``cpu_start``)."""
     record.selection_means = scores

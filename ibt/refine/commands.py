@@ -22,13 +22,14 @@ is exactly the one the BT writes. Deterministic given the seed.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from ibt.refine.by_return import (
+    RefinementRecord,
     _Episodes,
     close_record,
     cma_search,
@@ -156,24 +157,8 @@ def _cma_stage(arrays: CommandArrays, task: Task, spread: np.ndarray, config: Re
 
 
 @dataclass
-class CommandRefinement:
+class CommandRefinement(RefinementRecord[CommandArrays]):
     """A command-tree refinement's record: each stage's result and the chosen tree."""
-
-    task: str
-    seed: int
-    config: dict[str, Any]
-    stages: list[dict[str, Any]] = field(default_factory=list)
-    candidates: list[CommandArrays] = field(default_factory=list)  # [source, after each stage]
-    best_index: int = 0
-    selection_means: list[float] = field(default_factory=list)
-    episodes: int = 0
-    steps: int = 0
-    wall_seconds: float = 0.0
-    cpu_seconds: float = 0.0
-
-    @property
-    def best(self) -> CommandArrays:
-        return self.candidates[self.best_index]
 
     def to_doc(self) -> dict[str, Any]:
         """Plain JSON data (a ``json`` cache payload)."""
