@@ -38,9 +38,9 @@ import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 from tqdm import tqdm
 
+from ibt.distill.relational import AugmentedTask
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout, selection_seeds
 from ibt.refine.by_return import _Episodes, _prune_stage
-from ibt.refine.relational import AugmentedTask
 from ibt.refine.tree_arrays import TreeArrays, _from_nested
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
