@@ -34,7 +34,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Generic, Protocol, Self, TypeVar
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
@@ -139,7 +139,8 @@ class Batch(Protocol):
 
 
 class _Episodes:
-    """Hands out fresh refinement episode seeds and counts what was spent."""
+    """Hands out fresh refinement episode seeds and counts what was spent: episodes, steps,
+    and the run's wall and CPU seconds since it was opened (:meth:`elapsed`)."""
 
     def __init__(self, task: Task, seed: int, config: RefineConfig, bar: Any) -> None:
         self.task = task
@@ -148,6 +149,18 @@ class _Episodes:
         self.used = 0
         self.steps = 0
         self.bar = bar
+        self.start, self.cpu_start = time.perf_counter(), time.process_time()
+
+    @classmethod
+    def opened(cls, task: Task, seed: int, config: Any, what: str, progress: bool) -> Self:
+        """A run's episodes, its progress bar (``what``: the run's name) counting them."""
+        bar = tqdm(total=config.episodes, desc=f"{what} {task.name} s{seed}", unit="ep",
+                   disable=not progress, leave=False)
+        return cls(task, seed, config, bar)
+
+    def elapsed(self) -> tuple[float, float]:
+        """Wall and CPU (this process, one core) seconds since the run was opened."""
+        return time.perf_counter() - self.start, time.process_time() - self.cpu_start
 
     @property
     def left(self) -> int:
@@ -376,10 +389,8 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
                          f"{task.n_features}")
     rng = np.random.default_rng(seed)
     record = Refinement(task.name, seed, config.as_params(), candidates=[source])
-    start, cpu_start = time.perf_counter(), time.process_time()
-    bar = tqdm(total=config.episodes, desc=f"refine {task.name} s{seed}", unit="ep",
-               disable=not progress, leave=False)
-    episodes = _Episodes(task, seed, config, bar)
+    episodes = _Episodes.opened(task, seed, config, "refine", progress)
+    bar = episodes.bar
     spread = feature_spread(task, source, episodes)
     current = source
     for name in config.stages:
@@ -406,7 +417,7 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
     if not eligible:
         eligible = [len(structures) - 1]
     record.best_index = max(eligible, key=lambda i: (scores[i], -structures[i].n_leaves, -i))
-    return close_record(record, scores, episodes, start, cpu_start)
+    return close_record(record, scores, episodes)
 
 
 def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineConfig,
@@ -420,12 +431,10 @@ def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineCo
 Record = TypeVar("Record", bound=RefinementRecord)
 
 
-def close_record(record: Record, scores: list[float], episodes: _Episodes, start: float,
-                 cpu_start: float) -> Record:
+def close_record(record: Record, scores: list[float], episodes: _Episodes) -> Record:
     """A refinement's record completed: its selection means and what the run cost (episodes,
-    steps, wall and CPU seconds since ``start``/``cpu_start``)."""
+    steps, wall and CPU seconds since ``episodes`` was opened)."""
     record.selection_means = scores
     record.episodes, record.steps = episodes.used, episodes.steps
-    record.wall_seconds = time.perf_counter() - start
-    record.cpu_seconds = time.process_time() - cpu_start
+    record.wall_seconds, record.cpu_seconds = episodes.elapsed()
     return record

@@ -21,12 +21,10 @@ is exactly the one the BT writes. Deterministic given the seed.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from ibt.refine.by_return import (
     RefinementRecord,
@@ -193,10 +191,8 @@ def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, 
                          f"has {task.n_features}")
     rng = np.random.default_rng(seed)
     record = CommandRefinement(task.name, seed, config.as_params(), candidates=[source])
-    start, cpu_start = time.perf_counter(), time.process_time()
-    bar = tqdm(total=config.episodes, desc=f"refine commands {task.name} s{seed}", unit="ep",
-               disable=not progress, leave=False)
-    episodes = _Episodes(task, seed, config, bar)
+    episodes = _Episodes.opened(task, seed, config, "refine commands", progress)
+    bar = episodes.bar
     spread = visited_spread(task, source.actions, episodes)
     current = source
     for name in config.stages:
@@ -210,4 +206,4 @@ def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, 
     scores = held_out_means(episodes, [CommandPopulation(a, a.structure.threshold, a.values)
                                        for a in record.candidates], config, seed)
     record.best_index = max(range(len(scores)), key=lambda i: (scores[i], -i))
-    return close_record(record, scores, episodes, start, cpu_start)
+    return close_record(record, scores, episodes)
