@@ -101,13 +101,15 @@ class Refinement(RefinementRecord[TreeArrays]):
         return self.best.to_sklearn()
 
 
-class Population:
-    """Parameter sets (thresholds, leaf actions) of one tree structure, decided in one batch."""
+class ThresholdSets:
+    """Threshold sets of one tree structure, walked in one batch: row ``i`` goes down the tree
+    with member ``members[i]``'s thresholds (float32 features widened to float64, as
+    scikit-learn). What the leaves hold is the subclass's: actions (:class:`Population`),
+    command values (:class:`ibt.refine.commands.CommandPopulation`)."""
 
-    def __init__(self, structure: TreeArrays, thresholds: np.ndarray, actions: np.ndarray):
+    def __init__(self, structure: TreeArrays, thresholds: np.ndarray):
         self.structure = structure
         self.thresholds = np.atleast_2d(np.asarray(thresholds, dtype=np.float64))
-        self.actions = np.atleast_2d(np.asarray(actions, dtype=np.int64))
         self.feature = np.maximum(structure.feature, 0)
         self.is_leaf = structure.is_leaf
         self.depth = structure.depth()
@@ -115,7 +117,8 @@ class Population:
     def __len__(self) -> int:
         return len(self.thresholds)
 
-    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+    def leaves(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """The leaf each row reaches in its member's tree."""
         x = np.asarray(features, dtype=np.float32).astype(np.float64)
         rows = np.arange(len(x))
         node = np.zeros(len(x), dtype=np.int64)
@@ -123,7 +126,18 @@ class Population:
             go_left = x[rows, self.feature[node]] <= self.thresholds[members, node]
             nxt = np.where(go_left, self.structure.left[node], self.structure.right[node])
             node = np.where(self.is_leaf[node], node, nxt)
-        return self.actions[members, node]
+        return node
+
+
+class Population(ThresholdSets):
+    """Parameter sets (thresholds, leaf actions) of one tree structure, decided in one batch."""
+
+    def __init__(self, structure: TreeArrays, thresholds: np.ndarray, actions: np.ndarray):
+        super().__init__(structure, thresholds)
+        self.actions = np.atleast_2d(np.asarray(actions, dtype=np.int64))
+
+    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+        return self.actions[members, self.leaves(features, members)]
 
     def member(self, i: int) -> TreeArrays:
         return self.structure.with_parameters(self.thresholds[i], self.actions[i])

@@ -28,6 +28,7 @@ import numpy as np
 
 from ibt.refine.by_return import (
     RefinementRecord,
+    ThresholdSets,
     _Episodes,
     close_record,
     cma_search,
@@ -95,30 +96,18 @@ class CommandArrays:
         return cls(structure, values)
 
 
-class CommandPopulation:
+class CommandPopulation(ThresholdSets):
     """Threshold and command-table sets of one command tree, decided in one batch (the
     :class:`ibt.refine.by_return.Batch` protocol): row ``i`` is decided by ``members[i]``."""
 
     def __init__(self, arrays: CommandArrays, thresholds: np.ndarray, values: np.ndarray):
-        self.structure = arrays.structure
-        self.thresholds = np.atleast_2d(np.asarray(thresholds, dtype=np.float64))
+        super().__init__(arrays.structure, thresholds)
         self.values = np.asarray(values, dtype=np.float64).reshape(
             len(self.thresholds), *arrays.values.shape)
-        self.feature = np.maximum(self.structure.feature, 0)
-        self.depth = self.structure.depth()
-
-    def __len__(self) -> int:
-        return len(self.thresholds)
 
     def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
-        x = np.asarray(features, dtype=np.float32).astype(np.float64)
-        rows = np.arange(len(x))
-        node = np.zeros(len(x), dtype=np.int64)
-        s = self.structure
-        for _ in range(self.depth):
-            go_left = x[rows, self.feature[node]] <= self.thresholds[members, node]
-            node = np.where(s.is_leaf[node], node, np.where(go_left, s.left[node], s.right[node]))
-        return self.values[members, s.action[node]].astype(np.float32)
+        leaf = self.leaves(features, members)
+        return self.values[members, self.structure.action[leaf]].astype(np.float32)
 
 
 def _rounded(values: np.ndarray, task: Task, decimals: int) -> np.ndarray:
