@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from sklearn.tree import DecisionTreeRegressor
 
-from ibt.distill.loop import METHODS, Distillation, interactive_loop, mix
+from ibt.distill.loop import METHODS, Distillation, check_loop_settings, interactive_loop, mix
 from ibt.experts.expert import Expert
 from ibt.tasks.settings import BOX_MAX_LEAF_NODES
 from ibt.tasks.task import Task
@@ -46,11 +46,7 @@ class BoxDistillConfig:
     eval_envs: int = 20
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}; expected one of "
-                             f"{', '.join(METHODS)}")
-        if self.n_iterations < 1 or self.labels_per_iteration < 1:
-            raise ValueError("n_iterations and labels_per_iteration must be positive")
+        check_loop_settings(self.method, self.n_iterations, self.labels_per_iteration)
         if self.max_leaf_nodes is not None and self.max_leaf_nodes < 2:
             raise ValueError(f"max_leaf_nodes must be at least 2, got {self.max_leaf_nodes}")
 

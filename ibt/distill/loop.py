@@ -58,6 +58,15 @@ METHODS: dict[str, Method] = {
 }
 
 
+def check_loop_settings(method: str, n_iterations: int, labels_per_iteration: int) -> None:
+    """The checks every interactive loop's settings pass (:class:`DistillConfig`,
+    :class:`ibt.distill.continuous.BoxDistillConfig`): a known method, a positive budget."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if n_iterations < 1 or labels_per_iteration < 1:
+        raise ValueError("n_iterations and labels_per_iteration must be positive")
+
+
 @dataclass(frozen=True)
 class DistillConfig:
     """Everything that determines a distillation run (with the expert and the seed)."""
@@ -74,11 +83,7 @@ class DistillConfig:
     eval_envs: int = 20
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}; expected one of "
-                             f"{', '.join(METHODS)}")
-        if self.n_iterations < 1 or self.labels_per_iteration < 1:
-            raise ValueError("n_iterations and labels_per_iteration must be positive")
+        check_loop_settings(self.method, self.n_iterations, self.labels_per_iteration)
 
     @property
     def beta(self) -> schedules.Schedule:

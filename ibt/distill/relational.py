@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import heapq
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 
 from ibt.bt.linear import DEFAULT_WEIGHTS, FeatureMap, LinearForm
+from ibt.tasks.task import Task
 
 #: a relational split must decrease the impurity by this factor more than the best axis split
 #: (chosen before any result was seen: a tenth more, the least that is not noise at a leaf)
@@ -401,3 +402,44 @@ def compile_tree(tree: Any) -> Any:
 __all__ = ["DEFAULT_MARGIN", "LinearForm", "RelationalSettings", "RelationalTreeClassifier",
            "as_relational", "candidate_map", "compile_tree", "feature_map_of",
            "fit_relational_tree", "one_significant", "relational_tests", "scaled_candidate_map"]
+
+
+# ------------------------------------------------------------------------ the augmented task
+@dataclass(frozen=True)
+class AugmentedTask(Task):
+    """A task whose features are the observed ones and a feature map's derived columns."""
+
+    feature_map: FeatureMap | None = None
+
+    def features(self, obs: np.ndarray) -> np.ndarray:
+        base = super().features(obs)
+        return base if self.feature_map is None else self.feature_map.augment(base)
+
+    def observations(self, features: np.ndarray) -> np.ndarray:
+        """Augmented rows -> the raw observations (their observed columns)."""
+        x = np.asarray(features)
+        n = self.feature_map.n_features if self.feature_map is not None else x.shape[1]
+        return super().observations(x[:, :n])
+
+
+def augmented_task(task: Task, feature_map: FeatureMap, **overrides: Any) -> AugmentedTask:
+    """``task`` on ``feature_map``'s augmented rows (the one home of synthesis's and
+    refinement's view of a relational tree's task): the derived columns are features named as
+    a reader writes them, each bounded by interval arithmetic on the task's box; ``overrides``
+    replace other fields (synthesis: ``discrete_state=False, integer_features=False``)."""
+    if feature_map.n_features != task.n_features:
+        raise ValueError(f"the relational tree's feature map reads {feature_map.n_features} "
+                         f"features, but task {task.name} has {task.n_features}; use the task "
+                         "it was fitted on")
+    low, high = list(task.low), list(task.high)
+    for form in feature_map.forms:
+        ends = [w * b for w, i in ((form.w1, form.i), (form.w2, form.j))
+                for b in (task.low[i], task.high[i])]
+        a = sorted(ends[:2])
+        b = sorted(ends[2:])
+        low.append(a[0] + b[0])
+        high.append(a[1] + b[1])
+    values = {f.name: getattr(task, f.name) for f in fields(Task)}
+    values.update(feature_names=feature_map.names(task.feature_names), low=tuple(low),
+                  high=tuple(high), feature_map=feature_map, **overrides)
+    return AugmentedTask(**values)

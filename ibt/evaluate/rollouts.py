@@ -38,15 +38,11 @@ def selection_seeds(n: int, run_seed: int, offset: int = 0) -> list[int]:
     return [SELECTION_SEED_BASE + 10_000 * run_seed + offset + i for i in range(n)]
 
 
-@dataclass
-class Rollout:
-    """What a batch of episodes produced, in seed order."""
+class ReturnStats:
+    """The mean and standard deviation of a record's episode ``returns`` (its one home: a
+    :class:`Rollout`, a stage's :class:`ibt.runs.engine.stages.Returns`)."""
 
-    returns: np.ndarray
-    lengths: np.ndarray
-    final_infos: list[dict[str, Any]]
-    terminated: np.ndarray  # True where the episode ended in a terminal state (not a time limit)
-    obs: list[np.ndarray] = field(default_factory=list)  # per step batch, when collected
+    returns: Any  # an array or a list of episode returns
 
     @property
     def mean(self) -> float:
@@ -55,6 +51,17 @@ class Rollout:
     @property
     def std(self) -> float:
         return float(np.std(self.returns))
+
+
+@dataclass
+class Rollout(ReturnStats):
+    """What a batch of episodes produced, in seed order."""
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    final_infos: list[dict[str, Any]]
+    terminated: np.ndarray  # True where the episode ended in a terminal state (not a time limit)
+    obs: list[np.ndarray] = field(default_factory=list)  # per step batch, when collected
 
 
 ActFn = Callable[[np.ndarray], np.ndarray]

@@ -34,7 +34,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, Self, TypeVar
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
@@ -64,15 +64,21 @@ def task_config(task: Task, **overrides: Any) -> RefineConfig:
     return config
 
 
+Candidate = TypeVar("Candidate")
+
+
 @dataclass
-class Refinement:
-    """A refinement's record: each stage's result and the chosen tree."""
+class RefinementRecord(Generic[Candidate]):
+    """A refinement run's record, whatever its candidates are (:class:`TreeArrays` here,
+    command trees in :mod:`ibt.refine.commands`): each stage's result and the chosen one. The
+    fields, in this order, are the cached payloads' (the ``refinement`` codec, the command
+    refinement's JSON document)."""
 
     task: str
     seed: int
     config: dict[str, Any]
     stages: list[dict[str, Any]] = field(default_factory=list)
-    candidates: list[TreeArrays] = field(default_factory=list)  # [source, after each stage]
+    candidates: list[Candidate] = field(default_factory=list)  # [source, after each stage]
     best_index: int = 0
     selection_means: list[float] = field(default_factory=list)  # per candidate, held out
     episodes: int = 0  # refinement episodes used (selection episodes not included)
@@ -81,8 +87,13 @@ class Refinement:
     cpu_seconds: float = 0.0  # this process's CPU time (one core), selection included
 
     @property
-    def best(self) -> TreeArrays:
+    def best(self) -> Candidate:
         return self.candidates[self.best_index]
+
+
+@dataclass
+class Refinement(RefinementRecord[TreeArrays]):
+    """A tree refinement's record: each stage's result and the chosen tree."""
 
     @property
     def best_tree(self) -> DecisionTreeClassifier:
@@ -90,13 +101,15 @@ class Refinement:
         return self.best.to_sklearn()
 
 
-class Population:
-    """Parameter sets (thresholds, leaf actions) of one tree structure, decided in one batch."""
+class ThresholdSets:
+    """Threshold sets of one tree structure, walked in one batch: row ``i`` goes down the tree
+    with member ``members[i]``'s thresholds (float32 features widened to float64, as
+    scikit-learn). What the leaves hold is the subclass's: actions (:class:`Population`),
+    command values (:class:`ibt.refine.commands.CommandPopulation`)."""
 
-    def __init__(self, structure: TreeArrays, thresholds: np.ndarray, actions: np.ndarray):
+    def __init__(self, structure: TreeArrays, thresholds: np.ndarray):
         self.structure = structure
         self.thresholds = np.atleast_2d(np.asarray(thresholds, dtype=np.float64))
-        self.actions = np.atleast_2d(np.asarray(actions, dtype=np.int64))
         self.feature = np.maximum(structure.feature, 0)
         self.is_leaf = structure.is_leaf
         self.depth = structure.depth()
@@ -104,7 +117,8 @@ class Population:
     def __len__(self) -> int:
         return len(self.thresholds)
 
-    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+    def leaves(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """The leaf each row reaches in its member's tree."""
         x = np.asarray(features, dtype=np.float32).astype(np.float64)
         rows = np.arange(len(x))
         node = np.zeros(len(x), dtype=np.int64)
@@ -112,7 +126,18 @@ class Population:
             go_left = x[rows, self.feature[node]] <= self.thresholds[members, node]
             nxt = np.where(go_left, self.structure.left[node], self.structure.right[node])
             node = np.where(self.is_leaf[node], node, nxt)
-        return self.actions[members, node]
+        return node
+
+
+class Population(ThresholdSets):
+    """Parameter sets (thresholds, leaf actions) of one tree structure, decided in one batch."""
+
+    def __init__(self, structure: TreeArrays, thresholds: np.ndarray, actions: np.ndarray):
+        super().__init__(structure, thresholds)
+        self.actions = np.atleast_2d(np.asarray(actions, dtype=np.int64))
+
+    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+        return self.actions[members, self.leaves(features, members)]
 
     def member(self, i: int) -> TreeArrays:
         return self.structure.with_parameters(self.thresholds[i], self.actions[i])
@@ -128,7 +153,8 @@ class Batch(Protocol):
 
 
 class _Episodes:
-    """Hands out fresh refinement episode seeds and counts what was spent."""
+    """Hands out fresh refinement episode seeds and counts what was spent: episodes, steps,
+    and the run's wall and CPU seconds since it was opened (:meth:`elapsed`)."""
 
     def __init__(self, task: Task, seed: int, config: RefineConfig, bar: Any) -> None:
         self.task = task
@@ -137,6 +163,18 @@ class _Episodes:
         self.used = 0
         self.steps = 0
         self.bar = bar
+        self.start, self.cpu_start = time.perf_counter(), time.process_time()
+
+    @classmethod
+    def opened(cls, task: Task, seed: int, config: Any, what: str, progress: bool) -> Self:
+        """A run's episodes, its progress bar (``what``: the run's name) counting them."""
+        bar = tqdm(total=config.episodes, desc=f"{what} {task.name} s{seed}", unit="ep",
+                   disable=not progress, leave=False)
+        return cls(task, seed, config, bar)
+
+    def elapsed(self) -> tuple[float, float]:
+        """Wall and CPU (this process, one core) seconds since the run was opened."""
+        return time.perf_counter() - self.start, time.process_time() - self.cpu_start
 
     @property
     def left(self) -> int:
@@ -365,10 +403,8 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
                          f"{task.n_features}")
     rng = np.random.default_rng(seed)
     record = Refinement(task.name, seed, config.as_params(), candidates=[source])
-    start, cpu_start = time.perf_counter(), time.process_time()
-    bar = tqdm(total=config.episodes, desc=f"refine {task.name} s{seed}", unit="ep",
-               disable=not progress, leave=False)
-    episodes = _Episodes(task, seed, config, bar)
+    episodes = _Episodes.opened(task, seed, config, "refine", progress)
+    bar = episodes.bar
     spread = feature_spread(task, source, episodes)
     current = source
     for name in config.stages:
@@ -395,7 +431,7 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
     if not eligible:
         eligible = [len(structures) - 1]
     record.best_index = max(eligible, key=lambda i: (scores[i], -structures[i].n_leaves, -i))
-    return close_record(record, scores, episodes, start, cpu_start)
+    return close_record(record, scores, episodes)
 
 
 def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineConfig,
@@ -406,12 +442,13 @@ def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineCo
     return [float(episodes.score(p, held_out, count=False).mean()) for p in populations]
 
 
-def close_record(record: Any, scores: list[float], episodes: _Episodes, start: float,
-                 cpu_start: float) -> Any:
+Record = TypeVar("Record", bound=RefinementRecord)
+
+
+def close_record(record: Record, scores: list[float], episodes: _Episodes) -> Record:
     """A refinement's record completed: its selection means and what the run cost (episodes,
-    steps, wall and CPU seconds since ``start``/``cpu_start``)."""
+    steps, wall and CPU seconds since ``episodes`` was opened)."""
     record.selection_means = scores
     record.episodes, record.steps = episodes.used, episodes.steps
-    record.wall_seconds = time.perf_counter() - start
-    record.cpu_seconds = time.process_time() - cpu_start
+    record.wall_seconds, record.cpu_seconds = episodes.elapsed()
     return record

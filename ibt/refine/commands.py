@@ -21,14 +21,14 @@ is exactly the one the BT writes. Deterministic given the seed.
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from ibt.refine.by_return import (
+    RefinementRecord,
+    ThresholdSets,
     _Episodes,
     close_record,
     cma_search,
@@ -96,30 +96,18 @@ class CommandArrays:
         return cls(structure, values)
 
 
-class CommandPopulation:
+class CommandPopulation(ThresholdSets):
     """Threshold and command-table sets of one command tree, decided in one batch (the
     :class:`ibt.refine.by_return.Batch` protocol): row ``i`` is decided by ``members[i]``."""
 
     def __init__(self, arrays: CommandArrays, thresholds: np.ndarray, values: np.ndarray):
-        self.structure = arrays.structure
-        self.thresholds = np.atleast_2d(np.asarray(thresholds, dtype=np.float64))
+        super().__init__(arrays.structure, thresholds)
         self.values = np.asarray(values, dtype=np.float64).reshape(
             len(self.thresholds), *arrays.values.shape)
-        self.feature = np.maximum(self.structure.feature, 0)
-        self.depth = self.structure.depth()
-
-    def __len__(self) -> int:
-        return len(self.thresholds)
 
     def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
-        x = np.asarray(features, dtype=np.float32).astype(np.float64)
-        rows = np.arange(len(x))
-        node = np.zeros(len(x), dtype=np.int64)
-        s = self.structure
-        for _ in range(self.depth):
-            go_left = x[rows, self.feature[node]] <= self.thresholds[members, node]
-            node = np.where(s.is_leaf[node], node, np.where(go_left, s.left[node], s.right[node]))
-        return self.values[members, s.action[node]].astype(np.float32)
+        leaf = self.leaves(features, members)
+        return self.values[members, self.structure.action[leaf]].astype(np.float32)
 
 
 def _rounded(values: np.ndarray, task: Task, decimals: int) -> np.ndarray:
@@ -156,24 +144,8 @@ def _cma_stage(arrays: CommandArrays, task: Task, spread: np.ndarray, config: Re
 
 
 @dataclass
-class CommandRefinement:
+class CommandRefinement(RefinementRecord[CommandArrays]):
     """A command-tree refinement's record: each stage's result and the chosen tree."""
-
-    task: str
-    seed: int
-    config: dict[str, Any]
-    stages: list[dict[str, Any]] = field(default_factory=list)
-    candidates: list[CommandArrays] = field(default_factory=list)  # [source, after each stage]
-    best_index: int = 0
-    selection_means: list[float] = field(default_factory=list)
-    episodes: int = 0
-    steps: int = 0
-    wall_seconds: float = 0.0
-    cpu_seconds: float = 0.0
-
-    @property
-    def best(self) -> CommandArrays:
-        return self.candidates[self.best_index]
 
     def to_doc(self) -> dict[str, Any]:
         """Plain JSON data (a ``json`` cache payload)."""
@@ -208,10 +180,8 @@ def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, 
                          f"has {task.n_features}")
     rng = np.random.default_rng(seed)
     record = CommandRefinement(task.name, seed, config.as_params(), candidates=[source])
-    start, cpu_start = time.perf_counter(), time.process_time()
-    bar = tqdm(total=config.episodes, desc=f"refine commands {task.name} s{seed}", unit="ep",
-               disable=not progress, leave=False)
-    episodes = _Episodes(task, seed, config, bar)
+    episodes = _Episodes.opened(task, seed, config, "refine commands", progress)
+    bar = episodes.bar
     spread = visited_spread(task, source.actions, episodes)
     current = source
     for name in config.stages:
@@ -225,4 +195,4 @@ def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, 
     scores = held_out_means(episodes, [CommandPopulation(a, a.structure.threshold, a.values)
                                        for a in record.candidates], config, seed)
     record.best_index = max(range(len(scores)), key=lambda i: (scores[i], -i))
-    return close_record(record, scores, episodes, start, cpu_start)
+    return close_record(record, scores, episodes)

@@ -2,9 +2,10 @@
 
 A relational tree is an axis-aligned tree over augmented columns (observed features, then the
 derived ``w1 * x_i + w2 * x_j`` of its :class:`ibt.bt.linear.FeatureMap`). Refinement runs
-unchanged on it when the rollouts feed augmented features: :class:`AugmentedTask` is the task
-whose :meth:`features` appends the derived columns (by the floating-point rule of
-:mod:`ibt.bt.linear`) and whose feature names and box cover them. CMA-ES then tunes every
+unchanged on it when the rollouts feed augmented features: the
+:class:`~ibt.distill.relational.AugmentedTask` is the task whose :meth:`features` appends the
+derived columns (by the floating-point rule of :mod:`ibt.bt.linear`) and whose feature names and
+box cover them. CMA-ES then tunes every
 threshold, relational ones included, in units of its column's spread over visited states; the
 leaf sweeps and pruning work as on any tree. The weights stay fixed (the learner picks them from
 readable pairs; tuning them would make the tests harder to read).
@@ -16,55 +17,16 @@ one).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 from typing import Any
 
-import numpy as np
-
 from ibt.bt.linear import FeatureMap
-from ibt.distill.relational import RelationalTreeClassifier, as_relational
+from ibt.distill.relational import RelationalTreeClassifier, as_relational, augmented_task
 from ibt.refine.by_return import Refinement, refine
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
 
 FEATURE_MAP_KEY = "feature_map"  # where a relational refinement's record keeps its map
-
-
-@dataclass(frozen=True)
-class AugmentedTask(Task):
-    """A task whose features are the observed ones and a feature map's derived columns."""
-
-    feature_map: FeatureMap | None = None
-
-    def features(self, obs: np.ndarray) -> np.ndarray:
-        base = super().features(obs)
-        return base if self.feature_map is None else self.feature_map.augment(base)
-
-    def observations(self, features: np.ndarray) -> np.ndarray:
-        """Augmented rows -> the raw observations (their observed columns)."""
-        x = np.asarray(features)
-        n = self.feature_map.n_features if self.feature_map is not None else x.shape[1]
-        return super().observations(x[:, :n])
-
-
-def augmented_task(task: Task, feature_map: FeatureMap) -> AugmentedTask:
-    """``task`` reading ``feature_map``'s augmented rows; each derived column's box is the
-    range its form takes on the task's box."""
-    if feature_map.n_features != task.n_features:
-        raise ValueError(f"the feature map reads {feature_map.n_features} features, "
-                         f"{task.name} has {task.n_features}")
-    low, high = list(task.low), list(task.high)
-    for form in feature_map.forms:
-        ends = [form.w1 * a + form.w2 * b for a in (task.low[form.i], task.high[form.i])
-                for b in (task.low[form.j], task.high[form.j])]
-        with np.errstate(invalid="ignore"):
-            low.append(float(np.nanmin(ends)) if np.isfinite(ends).all() else -np.inf)
-            high.append(float(np.nanmax(ends)) if np.isfinite(ends).all() else np.inf)
-    values = {f.name: getattr(task, f.name) for f in fields(Task)}
-    values.update(feature_names=feature_map.names(task.feature_names), low=tuple(low),
-                  high=tuple(high), feature_map=feature_map)
-    return AugmentedTask(**values)
 
 
 def refine_relational(tree: RelationalTreeClassifier, task: Task, config: RefineConfig,

@@ -36,11 +36,10 @@ from typing import Any
 
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
-from tqdm import tqdm
 
+from ibt.distill.relational import AugmentedTask
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout, selection_seeds
 from ibt.refine.by_return import _Episodes, _prune_stage
-from ibt.refine.relational import AugmentedTask
 from ibt.refine.tree_arrays import TreeArrays, _from_nested
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -447,10 +446,8 @@ def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
         if s.n_features != task.n_features:
             raise ValueError(f"a source tree reads {s.n_features} features, {task.name} has "
                              f"{task.n_features}")
-    start, cpu_start = time.perf_counter(), time.process_time()
-    bar = tqdm(total=config.episodes, desc=f"evolve {task.name} s{seed}", unit="ep",
-               disable=not progress, leave=False)
-    budget = _Budget(task, seed, config, bar)
+    budget = _Budget.opened(task, seed, config, "evolve", progress)
+    bar = budget.bar
     seeds = [_shrink(s.simplified(), config, budget) for s in seeds]
     record = Evolution(task.name, seed, config.as_params(), sources=seeds)
     mutator = _Mutator(task, config, rng, expert)
@@ -491,8 +488,7 @@ def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
     record.finalists = pool
     _choose(record, budget, config.selection_episodes)
     record.episodes, record.steps = budget.used, budget.steps
-    record.wall_seconds = time.perf_counter() - start
-    record.cpu_seconds = time.process_time() - cpu_start
+    record.wall_seconds, record.cpu_seconds = budget.elapsed()
     record.steps_per_second = ((record.steps + budget.uncounted_steps)
                                / max(record.cpu_seconds, 1e-9))
     record.random_steps_per_second = _random_speed(task, config, seed)

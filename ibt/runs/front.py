@@ -117,6 +117,13 @@ def bar_of(task: str, max_leaves: int) -> dict[str, Any]:
             "bar_seeds": BAR_SEEDS}
 
 
+#: a refinement's settings under the ``smoke`` profile (seconds, not minutes): the task's
+#: refinement here and the structure search's polish (:func:`ibt.runs.search.polish_config`)
+SMOKE_REFINE: dict[str, Any] = {"cma_generations": 2, "cma_episodes": 2, "cma_popsize": 4,
+                                "sweep_episodes": 2, "sweep_rounds": 1, "selection_episodes": 3,
+                                "n_envs": 8}
+
+
 def refine_config(cfg: Config, task: str | Task, **overrides: Any) -> RefineConfig:
     """The task's refinement budget (:func:`ibt.refine.by_return.task_config`), shrunk to
     seconds under the ``smoke`` profile."""
@@ -124,9 +131,7 @@ def refine_config(cfg: Config, task: str | Task, **overrides: Any) -> RefineConf
 
     config = task_config(get_task(task), **overrides)
     if cfg.profile == "smoke":
-        config = replace(config, episodes=min(config.episodes, 240), cma_generations=2,
-                         cma_episodes=2, cma_popsize=4, sweep_episodes=2, sweep_rounds=1,
-                         selection_episodes=3, n_envs=8)
+        config = replace(config, episodes=min(config.episodes, 240), **SMOKE_REFINE)
     return config
 
 

@@ -31,7 +31,13 @@ from ibt.refine.structure import Evolution
 from ibt.runs.cache import load_or_compute
 from ibt.runs.engine.agent import committed_agent
 from ibt.runs.engine.stages import evolve_one
-from ibt.runs.front import STRUCTURE, plus_run, ranked_sources, refinement_cached
+from ibt.runs.front import (
+    SMOKE_REFINE,
+    STRUCTURE,
+    plus_run,
+    ranked_sources,
+    refinement_cached,
+)
 from ibt.runs.grid import _bt_digest
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig, RefineConfig
@@ -61,8 +67,7 @@ def polish_config(cfg: Config, config: EvolveConfig) -> RefineConfig:
                           cma_generations=400, cma_episodes=16, max_leaves=config.max_leaves,
                           selection_episodes=config.selection_episodes)
     if cfg.profile == "smoke":
-        polish = replace(polish, cma_generations=2, cma_episodes=2, cma_popsize=4,
-                         sweep_episodes=2, sweep_rounds=1, selection_episodes=3, n_envs=8)
+        polish = replace(polish, **SMOKE_REFINE)
     return polish
 
 

@@ -192,12 +192,19 @@ def verify(bt: BehaviorTree, tree: DecisionTreeClassifier, task: Task, *, seed: 
     if relational.is_relational(tree):
         return relational.verify_relational(bt, tree, task, seed=seed, n_random=n_random)
     states = verification_states(tree, task, n_random=n_random, seed=seed)
-    expected = CompiledTree(tree).predict(states)
+    return check_agreement(bt, states, CompiledTree(tree).predict(states), "tree")
+
+
+def check_agreement(bt: BehaviorTree, states: np.ndarray, expected: np.ndarray,
+                    source: str) -> int:
+    """Raise :class:`NotEquivalentError` unless ``bt`` decides ``expected`` (its ``source``'s
+    actions, e.g. ``"tree"``) on every row of ``states``; returns how many states were checked.
+    The one comparison of :func:`verify` and :func:`ibt.synth.relational.verify_relational`."""
     got = bt.decide(states)
     bad = np.flatnonzero(expected != got)
     if len(bad):
         i = bad[0]
         raise NotEquivalentError(
-            f"BT disagrees with its tree on {len(bad)} of {len(states)} states; first: "
+            f"BT disagrees with its {source} on {len(bad)} of {len(states)} states; first: "
             f"{states[i].tolist()} -> BT {got[i]}, tree {expected[i]}")
     return len(states)

@@ -6,8 +6,8 @@ observed features followed by derived columns ``z_k = w1 * x[i] + w2 * x[j]``
 space:
 
 1. :func:`augmented_view` gives the plain scikit-learn tree behind it (same ``tree_``), and
-   :func:`augmented_task` a task whose features are the augmented columns (named
-   ``x - vx``; its box bounds each derived column by interval arithmetic);
+   :func:`~ibt.distill.relational.augmented_task` a task whose features are the augmented
+   columns (named ``x - vx``; its box bounds each derived column by interval arithmetic);
 2. the synthesiser runs on those (so Espresso's implication don't-cares between tests of one
    linear form come for free: they test one column), and verifies its BT there;
 3. :func:`rewrite` turns every condition on a derived column ``k`` into the relational
@@ -35,7 +35,7 @@ from sklearn.tree import DecisionTreeClassifier
 from ibt.bt.linear import FeatureMap, exact_threshold
 from ibt.bt.model import BehaviorTree, Condition, Fallback, Inverter, Node, Sequence
 from ibt.bt.polytope import Test, crossing_rows, find_state
-from ibt.distill.relational import feature_map_of
+from ibt.distill.relational import augmented_task, feature_map_of
 from ibt.synth.rules import leaf_paths
 from ibt.tasks.catalogue import Task
 
@@ -51,25 +51,6 @@ def augmented_view(tree: Any) -> DecisionTreeClassifier:
     view = DecisionTreeClassifier.__new__(DecisionTreeClassifier)
     view.__dict__.update({k: v for k, v in tree.__dict__.items() if k != "feature_map_"})
     return view
-
-
-def augmented_task(task: Task, feature_map: FeatureMap) -> Task:
-    """``task`` seen on augmented rows: the derived columns are features named as a reader
-    writes them, each bounded by interval arithmetic on the task's box."""
-    if feature_map.n_features != task.n_features:
-        raise ValueError(f"the relational tree's feature map reads {feature_map.n_features} "
-                         f"features, but task {task.name} has {task.n_features}; synthesise "
-                         "with the task it was fitted on")
-    low, high = list(task.low), list(task.high)
-    for form in feature_map.forms:
-        ends = [w * b for w, i in ((form.w1, form.i), (form.w2, form.j))
-                for b in (task.low[i], task.high[i])]
-        a = sorted(ends[:2])
-        b = sorted(ends[2:])
-        low.append(a[0] + b[0])
-        high.append(a[1] + b[1])
-    return replace(task, feature_names=feature_map.names(task.feature_names), low=tuple(low),
-                   high=tuple(high), discrete_state=False, integer_features=False)
 
 
 def rewrite(node: Node, feature_map: FeatureMap) -> Node:
@@ -93,7 +74,8 @@ def synthesise(function: Callable[..., Any], tree: Any, task: Task, **options: A
     augmented columns and says so (``feature_map``)."""
     feature_map = feature_map_of(tree)
     assert feature_map is not None
-    result = function(augmented_view(tree), augmented_task(task, feature_map), **options)
+    wide = augmented_task(task, feature_map, discrete_state=False, integer_features=False)
+    result = function(augmented_view(tree), wide, **options)
     bt = result.bt
     relational = BehaviorTree(rewrite(bt.root, feature_map), task.feature_names,
                               task.action_names, task.value_labels, bt.commands)
@@ -162,16 +144,8 @@ def verify_relational(bt: BehaviorTree, tree: Any, task: Task, *, seed: int = 0,
     """Raise :class:`~ibt.synth.imitation.NotEquivalentError` unless ``bt`` decides as the
     relational ``tree`` (its ``predict`` on observed rows) on every state of
     :func:`verification_states`; returns how many states were checked."""
-    from ibt.synth.imitation import NotEquivalentError
+    from ibt.synth.imitation import check_agreement
 
-    check = verification_states(tree, task, n_random=n_random, seed=seed)
-    states = check.states
-    expected = np.asarray(tree.predict(states)).astype(np.int64)
-    got = bt.decide(states)
-    bad = np.flatnonzero(expected != got)
-    if len(bad):
-        i = bad[0]
-        raise NotEquivalentError(
-            f"BT disagrees with its relational tree on {len(bad)} of {len(states)} states; "
-            f"first: {states[i].tolist()} -> BT {got[i]}, tree {expected[i]}")
-    return len(states)
+    states = verification_states(tree, task, n_random=n_random, seed=seed).states
+    return check_agreement(bt, states, np.asarray(tree.predict(states)).astype(np.int64),
+                           "relational tree")

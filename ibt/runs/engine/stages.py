@@ -29,9 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
-import numpy as np
-
-from ibt.evaluate.rollouts import FINAL_SEED_BASE, rollout, selection_seeds
+from ibt.evaluate.rollouts import FINAL_SEED_BASE, ReturnStats, rollout, selection_seeds
 from ibt.profiles import Config
 from ibt.runs.cache import load_or_compute
 from ibt.runs.engine.agent import Agent
@@ -47,19 +45,11 @@ SEARCHED_REL = "imitation-bt+sr"  # ibt.runs.relational_search.METHOD
 
 
 @dataclass
-class Returns:
+class Returns(ReturnStats):
     """Episode returns of one policy on a block of held-out episodes (consecutive seeds)."""
 
     returns: list[float]
     first_seed: int
-
-    @property
-    def mean(self) -> float:
-        return float(np.mean(self.returns))
-
-    @property
-    def std(self) -> float:
-        return float(np.std(self.returns))
 
 
 def held_out(n: int, block: int) -> list[int]:
