@@ -34,7 +34,7 @@ figures: setup ## re-run every notebook (paper profile, cached results) and rewr
 			$(BIN)/python -m ibt.notebooks run $$nb; \
 	done; \
 	$(BIN)/python -m ibt.notebooks record-time $$(( $$(date +%s) - start )); \
-	$(BIN)/python -m ibt.runs.cache_admin stale --reads build/cache-reads --count  # what this run skipped, in one line
+	$(BIN)/python -m ibt.cache.admin stale --reads build/cache-reads --count  # what this run skipped, in one line
 
 animations: setup ## the GIFs of Behavior Trees in motion, figures/anim/*.gif (about a minute)
 	@start=$$(date +%s); nice -n 10 $(BIN)/python -m ibt.views.animate --out figures/anim; \

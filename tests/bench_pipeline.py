@@ -141,7 +141,7 @@ def run(case: Case) -> dict[str, object]:
 def search_speed(cache: Path) -> dict[str, object]:
     """The run's structure searches' stepping rate against random stepping measured in the
     same process (each restart's record holds both): the lowest and the mean ratio."""
-    from ibt.runs.cache import read_entry
+    from ibt.cache.store import read_entry
 
     ratios = []
     for entry in sorted(cache.glob("evolve*/*/")):

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from sklearn.tree import DecisionTreeClassifier
 
+from ibt.cache import admin as cache_admin
+from ibt.cache import store as cache
+from ibt.cache.store import cache_key, is_cached, legacy_cache_key, load_or_compute
 from ibt.distill.loop import tree_signature
-from ibt.runs import cache, cache_admin
-from ibt.runs.cache import cache_key, is_cached, legacy_cache_key, load_or_compute
 
 
 @pytest.fixture
@@ -59,7 +60,7 @@ def test_an_upgraded_package_misses(tmp_path, demo, monkeypatch):
 
 
 def test_unknown_kind_is_an_error(tmp_path):
-    with pytest.raises(KeyError, match=r"add it to ibt\.runs\.cache\.CODE_VERSIONS"):
+    with pytest.raises(KeyError, match=r"add it to ibt\.cache\.store\.CODE_VERSIONS"):
         load_or_compute("no-such-kind", {}, dict, cache_dir=tmp_path, codec="json")
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 import ibt
-from ibt.runs.cache import load_or_compute
+from ibt.cache.store import load_or_compute
 
 
 def test_notebook_provenance_names_no_git_commit():
@@ -56,7 +56,7 @@ def test_matplotlib_pdfs_carry_no_creation_date(tmp_path):
 
 
 def test_unread_cache_entries_are_one_line_with_the_command_that_lists_them(tmp_path, capsys):
-    from ibt.runs import cache_admin
+    from ibt.cache import admin as cache_admin
 
     cache = tmp_path / "cache"
     for i in range(3):
@@ -67,15 +67,15 @@ def test_unread_cache_entries_are_one_line_with_the_command_that_lists_them(tmp_
     assert cache_admin.main([*argv, "--count"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 1 and "3 unread" in lines[0]
-    assert f"python -m ibt.runs.cache_admin {' '.join(argv)}" in lines[0]
+    assert f"python -m ibt.cache.admin {' '.join(argv)}" in lines[0]
     assert cache_admin.main(argv) == 0
     assert len(capsys.readouterr().out.strip().splitlines()) == 4  # the list itself
 
 
 def test_nothing_unread_is_no_line_at_all(tmp_path, capsys):
     # Expect: a clone whose every cache entry was read prints nothing at the end of make figures
-    from ibt.runs import cache_admin
-    from ibt.runs.cache import cache_key
+    from ibt.cache import admin as cache_admin
+    from ibt.cache.store import cache_key
 
     cache = tmp_path / "cache"
     load_or_compute("tree-eval", {"i": 0}, lambda: {"x": 1}, cache_dir=cache, codec="json")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from ibt.runs import code_guard
+from ibt.cache import guard as code_guard
 
 
 def test_the_recorded_code_versions_and_sources_are_current():
@@ -24,7 +24,7 @@ def test_a_source_change_without_a_bump_is_caught(monkeypatch):
 
 
 def test_every_cache_kind_names_existing_sources():
-    from ibt.runs.cache import CODE_VERSIONS
+    from ibt.cache.store import CODE_VERSIONS
 
     assert set(code_guard.KIND_SOURCES) == set(CODE_VERSIONS)
     for sources in code_guard.KIND_SOURCES.values():
@@ -33,7 +33,8 @@ def test_every_cache_kind_names_existing_sources():
 
 def test_growing_the_key_packages_rekeys_entries_written_under_the_installed_versions(
         tmp_path, monkeypatch):
-    from ibt.runs import cache, cache_admin
+    from ibt.cache import admin as cache_admin
+    from ibt.cache import store as cache
 
     calls: list[int] = []
 

@@ -181,13 +181,13 @@ def test_a_planted_stale_doc_is_named_line_by_line(tmp_path):
         "Run `python -m ibt evaluate bt.json --task CartPole-v1 --no-such-flag 3`, then\n"
         "`python -m ibt no-such-command`; pass `--no-such-option`, run `make no-such-target`.\n"
         "```bash\nmake another-missing-target\n```\n"
-        "The code: `ibt.no_such_package.x` and `ibt.runs.cache.NO_SUCH_NAME`.\n")
+        "The code: `ibt.no_such_package.x` and `ibt.cache.store.NO_SUCH_NAME`.\n")
     found = problems([doc])
     for expected in ["path figures/no_such_figure.png", "path no_such_guide.md",
                      "flag --no-such-flag", "command python -m ibt no-such-command",
                      "flag --no-such-option", "make target no-such-target",
                      "make target another-missing-target", "module ibt.no_such_package.x",
-                     "module ibt.runs.cache.NO_SUCH_NAME"]:
+                     "module ibt.cache.store.NO_SUCH_NAME"]:
         assert f"stale.md: {expected}" in found, (expected, found)
     assert len(found) == 9, found
 
@@ -197,7 +197,7 @@ def test_a_planted_doc_naming_only_real_things_passes(tmp_path):
     doc = tmp_path / "fine.md"
     doc.write_text(
         "`data/trees/<task>/<algo>/<method>.json`, `data/results/*.csv`,\n"
-        "`figures/quickstart_bt.{svg,png}`, `Makefile`, `ibt.runs.cache.CODE_VERSIONS`,\n"
+        "`figures/quickstart_bt.{svg,png}`, `Makefile`, `ibt.cache.store.CODE_VERSIONS`,\n"
         "`ibt.bt.model.BehaviorTree`, `python -m ibt evaluate bt.json --task X --episodes 5`,\n"
         "`--keep 0.95`, `make figures`, and `ibt.synth.decision_list`.\n")
     assert problems([doc]) == []

@@ -7,9 +7,9 @@ import shutil
 import pytest
 
 import ibt
+from ibt.cache.store import cache_key, is_cached, load_or_compute
 from ibt.distill.loop import DistillConfig
 from ibt.experts.expert import expert_path, load_expert
-from ibt.runs.cache import cache_key, is_cached, load_or_compute
 from ibt.tasks.catalogue import get_task
 
 
@@ -60,7 +60,7 @@ def test_mismatched_expert_is_refused(tmp_path):
 @pytest.fixture
 def demo_kind(monkeypatch):
     """A cache kind of the tests' own, at code version 1."""
-    from ibt.runs import cache
+    from ibt.cache import store as cache
 
     monkeypatch.setitem(cache.CODE_VERSIONS, "demo", 1)
     return cache.CODE_VERSIONS

@@ -337,7 +337,7 @@ def test_a_file_edited_during_the_run_is_not_replaced(tmp_path):
 def test_an_unwritable_cache_warns_once(tmp_path, monkeypatch):
     import warnings
 
-    from ibt.runs import cache
+    from ibt.cache import store as cache
 
     def refuse(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
@@ -361,7 +361,7 @@ def test_a_forged_evaluation_payload_is_a_miss(tmp_path, payload, says):
     """Payload and digest both edited: the digest agrees, the numbers cannot be right."""
     import warnings
 
-    from ibt.runs import cache
+    from ibt.cache import store as cache
 
     params = {"task": "CartPole-v1", "episodes": 3}
     cache.load_or_compute("bt-eval", params, lambda: {"returns": [1.0, 2.0, 3.0]},

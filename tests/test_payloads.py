@@ -20,12 +20,14 @@ import ibt.bt
 import ibt.distill
 import ibt.refine
 from ibt.bt.model import Action, BehaviorTree, Condition, Fallback, Inverter, Selector, Sequence
+from ibt.cache import admin as cache_admin
+from ibt.cache import payloads
+from ibt.cache import store as cache
+from ibt.cache.payloads import CODECS, PayloadError, difference
+from ibt.cache.store import CacheWarning, cache_key, load_or_compute
 from ibt.distill.loop import Distillation, tree_signature
 from ibt.refine.by_return import Refinement
 from ibt.refine.tree_arrays import TreeArrays
-from ibt.runs import cache, cache_admin, payloads
-from ibt.runs.cache import CacheWarning, cache_key, load_or_compute
-from ibt.runs.payloads import CODECS, PayloadError, difference
 from tests.privileges import run_unprivileged
 
 
@@ -240,7 +242,7 @@ def test_a_damaged_entry_is_recomputed_with_one_warning(tmp_path, demo, damage, 
 
 
 def test_a_lookup_with_another_codec_is_an_error_and_overwrites_nothing(tmp_path, demo):
-    from ibt.runs.cache import CodecConflict
+    from ibt.cache.store import CodecConflict
 
     load_or_compute("demo", {"a": 1}, lambda: {"x": 1}, cache_dir=tmp_path, codec="json")
     entry = _entry(tmp_path, {"a": 1})
@@ -263,7 +265,7 @@ def test_a_payload_that_would_run_code_is_a_miss(tmp_path, demo):
     """An npz whose member is a pickle (an object array) is never unpickled on the read path."""
     import io
 
-    from ibt.runs.cache import entry_manifest, manifest_text, payload_digest
+    from ibt.cache.store import entry_manifest, manifest_text, payload_digest
 
     marker = tmp_path / "ran"
 
@@ -315,8 +317,8 @@ def test_an_unwritable_cache_returns_the_value_without_writing(tmp_path, demo, m
 READ_ONLY_LOOKUPS = """
 import sys, warnings
 from pathlib import Path
-from ibt.runs import cache
-from ibt.runs.cache import CacheWarning
+from ibt.cache import store as cache
+from ibt.cache.store import CacheWarning
 from tests.test_payloads import _lookup, _run
 cache.CODE_VERSIONS["demo"] = 1
 root, calls = Path(sys.argv[1]), []

@@ -81,8 +81,8 @@ def test_the_learner_is_deterministic_and_respects_its_limits():
 
 
 def test_a_relational_tree_round_trips_as_plain_data():
+    from ibt.cache.payloads import difference, dumps_npz, loads_npz
     from ibt.distill.tree_codec import PlainDataError, tree_from_data, tree_to_data
-    from ibt.runs.payloads import difference, dumps_npz, loads_npz
 
     x, y = _go_to_target()
     tree = fit_relational_tree(x, y, max_leaf_nodes=4)

@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
+from ibt.cache.payloads import difference
 from ibt.cli import main, sweep_temp_files
 from ibt.distill.loop import tree_signature
 from ibt.distill.tree_file import (
@@ -27,7 +28,6 @@ from ibt.distill.tree_file import (
     load_tree_file,
     save_tree_file,
 )
-from ibt.runs.payloads import difference
 from ibt.tasks.catalogue import get_task
 
 ROOT = Path(__file__).parents[1]

@@ -1,7 +1,7 @@
 """Exact plain-data encoding of values holding fitted scikit-learn decision trees.
 
 One encoding serves the tree files of :mod:`ibt.distill.tree_file` and the cache payloads of
-:mod:`ibt.runs.payloads`: a value becomes a JSON-able document, arrays go to pools of one dtype
+:mod:`ibt.cache.payloads`: a value becomes a JSON-able document, arrays go to pools of one dtype
 each, and decoding builds only the types listed here, so reading a document never imports a
 module or runs code named in it.
 
@@ -16,7 +16,7 @@ fitted ``DecisionTreeClassifier`` (its whole ``__dict__``, in order) and
 plain JSON of :meth:`ibt.bt.linear.FeatureMap.to_json`),
 ``{"__sklearn_Tree__": ...}`` for its ``tree_`` (the arguments of ``Tree(n_features, n_classes,
 n_outputs)`` and the state ``Tree.__setstate__`` takes, node records split into one array per
-field). ``__tree_arrays__`` is reserved for :mod:`ibt.runs.payloads`. The round trip is exact:
+field). ``__tree_arrays__`` is reserved for :mod:`ibt.cache.payloads`. The round trip is exact:
 :func:`ibt.distill.loop.tree_signature` and every attribute are unchanged.
 
 :func:`to_document` / :func:`from_document` make any such value one self-contained JSON

@@ -2,7 +2,7 @@
 commands, refine the command tree by return (Imitation-BT+ for continuous actions), synthesise
 every verified BT and evaluate it rolled out from its JSON document.
 
-Each step is one cache kind of :data:`ibt.runs.cache.CODE_VERSIONS` with a plain JSON payload:
+Each step is one cache kind of :data:`ibt.cache.store.CODE_VERSIONS` with a plain JSON payload:
 
 * ``box-distill``: :func:`ibt.distill.continuous.distill_box` (iterations and the best
   regression tree, :func:`ibt.distill.continuous.regressor_doc`);
@@ -27,13 +27,13 @@ import pandas as pd
 from tqdm import tqdm
 
 from ibt.bt.model import BehaviorTree, Commands
+from ibt.cache.store import load_or_compute
 from ibt.distill.continuous import (
     BoxDistillConfig,
 )
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.commands import CommandArrays, CommandRefinement
-from ibt.runs.cache import load_or_compute
 from ibt.runs.engine import stages
 from ibt.runs.engine.agent import committed_agent
 from ibt.runs.front import refine_config

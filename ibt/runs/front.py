@@ -35,11 +35,11 @@ import pandas as pd
 from tqdm import tqdm
 
 from ibt.bt.model import BehaviorTree
+from ibt.cache.store import load_or_compute
 from ibt.distill.loop import Distillation
 from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
 from ibt.refine.by_return import RefineConfig, Refinement, refine
-from ibt.runs.cache import load_or_compute
 from ibt.runs.engine.stages import smallest_bt
 from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.runs.pipeline import distill_cached

@@ -21,6 +21,7 @@ import pandas as pd
 from joblib import Parallel, delayed, parallel_config
 from tqdm import tqdm
 
+from ibt.cache.store import load_or_compute
 from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
 from ibt.evaluate.policies import TreePolicy
@@ -36,7 +37,6 @@ from ibt.experts.training import expert_statuses
 from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.report.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
-from ibt.runs.cache import load_or_compute
 from ibt.runs.engine.stages import bt_digest as _bt_digest
 from ibt.runs.engine.stages import tree_digest
 from ibt.runs.pipeline import distill_cached
@@ -85,7 +85,7 @@ def seed_budget(cells: Iterable[Cell]) -> list[Cell]:
 
 def uncached(cfg: Config, cells: Iterable[Cell]) -> list[Cell]:
     """The cells whose distillation is not in the cache yet (what ``pending`` may list)."""
-    from ibt.runs.cache import is_cached
+    from ibt.cache.store import is_cached
     from ibt.runs.pipeline import distill_params
 
     return [c for c in cells if not is_cached("distill", distill_params(
@@ -203,8 +203,8 @@ def write_results(cfg: Config, frame: pd.DataFrame, name: str, **facts: Any) -> 
     import json
     import platform
 
+    from ibt.cache.store import package_versions
     from ibt.files import atomic_write_csv, atomic_write_text
-    from ibt.runs.cache import package_versions
 
     target = cfg.data_dir / "results" / f"{name}.csv"
     atomic_write_csv(target, frame)

@@ -110,7 +110,7 @@ def provenance() -> dict[str, str]:
     it changes on every commit, and a committed notebook is its own commit's)."""
     import platform
 
-    from ibt.runs.cache import package_versions
+    from ibt.cache.store import package_versions
 
     return {"python": platform.python_version(),
             "machine": f"{platform.machine()}, {os.cpu_count()} cores", **package_versions()}

@@ -8,7 +8,7 @@ then the structure search with restarts below it, by bisection), turns every tre
 registered synthesiser's verified BT and recommends the smallest BT that keeps ``keep`` of the
 agent's random-normalised return (or, when none does, the one that keeps most). Every step is
 cached
-(:func:`ibt.runs.cache.load_or_compute`, keyed on the agent's digest), so raising the time, the
+(:func:`ibt.cache.store.load_or_compute`, keyed on the agent's digest), so raising the time, the
 budget or the leaf limits reruns only what changed; a deadline, Ctrl-C or SIGTERM ends the
 ladder between (or inside) steps with the best candidate found so far, marked as stopped.
 

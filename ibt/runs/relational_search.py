@@ -26,9 +26,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
+from ibt.cache.store import load_or_compute
 from ibt.profiles import Config
 from ibt.refine.structure import Evolution
-from ibt.runs.cache import load_or_compute
 from ibt.runs.search import StructureResult, evolve_config, polish_config, seed_trees
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig

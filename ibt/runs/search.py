@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 
 from ibt.bt.model import BehaviorTree
+from ibt.cache.store import load_or_compute
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
 from ibt.refine.structure import Evolution
-from ibt.runs.cache import load_or_compute
 from ibt.runs.engine.agent import committed_agent
 from ibt.runs.engine.stages import evolve_one
 from ibt.runs.front import (

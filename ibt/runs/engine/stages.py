@@ -1,4 +1,4 @@
-"""The method's stages for one agent, each a cached function (:mod:`ibt.runs.cache`).
+"""The method's stages for one agent, each a cached function (:mod:`ibt.cache.store`).
 
 A stage takes the :class:`~ibt.runs.engine.agent.Agent` and plain settings and returns a tree:
 
@@ -29,9 +29,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
+from ibt.cache.store import load_or_compute, tree_digest
 from ibt.evaluate.rollouts import FINAL_SEED_BASE, ReturnStats, rollout, selection_seeds
 from ibt.profiles import Config
-from ibt.runs.cache import load_or_compute
 from ibt.runs.engine.agent import Agent
 from ibt.tasks.task import Task
 
@@ -75,14 +75,6 @@ def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: li
 def doc_digest(doc: Any) -> str:
     """The identity of a plain-data document (a command tree's arrays)."""
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def tree_digest(tree: Any) -> str:
-    """A decision tree's identity in cache keys: the digest of its decision function
-    (:func:`ibt.distill.loop.tree_signature`)."""
-    from ibt.distill.loop import tree_signature
-
-    return hashlib.sha256(tree_signature(tree)).hexdigest()[:16]
 
 
 def tree_key(tree: Any) -> str:

@@ -5,7 +5,7 @@ JSON), the kind's code version (:data:`CODE_VERSIONS`) and the versions of the p
 change results (:data:`KEY_PACKAGES`) into a key; the entry is the folder
 ``<cache>/<kind>/<key>/`` holding ``payload.<suffix>`` and ``manifest.json``.
 
-Payloads are plain data, written and read by the codecs of :mod:`ibt.runs.payloads`: ``json``,
+Payloads are plain data, written and read by the codecs of :mod:`ibt.cache.payloads`: ``json``,
 ``csv``, and for our own classes ``distillation`` and ``refinement`` (``.npz``: numeric arrays
 and one JSON document; fitted scikit-learn trees rebuilt exactly from their node arrays) and
 ``synthesis`` (``.json``: the row and the BT in the format of ``data/trees/``). Reading one is
@@ -24,7 +24,7 @@ with another plain codec than the one the entry was written with is an error
 (:class:`CodecConflict`), never an overwrite: a kind's codec changes with its code version.
 
 A changed computation (its version bumped) or an upgraded package is a miss, never a stale hit;
-``python -m ibt.runs.cache_admin`` lists and prunes the entries left behind, verifies every
+``python -m ibt.cache.admin`` lists and prunes the entries left behind, verifies every
 payload against its manifest, and converts the pickled payloads of the past (``migrate-plain``).
 
 With ``IBT_CACHE_READS`` set to a folder, every lookup appends ``kind/key`` to a file there:
@@ -47,8 +47,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from ibt.cache import payloads
 from ibt.files import atomic_write_bytes, atomic_write_text
-from ibt.runs import payloads
 
 CODECS = payloads.CODECS  # codec name -> payloads.Codec
 TRACKED_PACKAGES = ("numpy", "scikit-learn", "stable-baselines3", "torch", "gymnasium", "pyeda",
@@ -59,7 +59,7 @@ KEY_PACKAGES = ("gymnasium", "highway-env", "numpy", "scikit-learn", "stable-bas
 #: The code version of every cache kind, part of each key. Bump a kind's number whenever its
 #: computation changes (the loop, an environment's dynamics, what the payload holds): every
 #: entry of that kind then misses and is recomputed, and the old ones are listed as stale by
-#: ``python -m ibt.runs.cache_admin stale`` (removed by ``prune``). To add a kind, add a line
+#: ``python -m ibt.cache.admin stale`` (removed by ``prune``). To add a kind, add a line
 #: here starting at 1 and name the function that computes it; a kind not listed here is an
 #: error.
 CODE_VERSIONS: dict[str, int] = {
@@ -101,7 +101,7 @@ def code_version(kind: str) -> int:
     try:
         return CODE_VERSIONS[kind]
     except KeyError:
-        raise KeyError(f"unknown cache kind {kind!r}; add it to ibt.runs.cache.CODE_VERSIONS "
+        raise KeyError(f"unknown cache kind {kind!r}; add it to ibt.cache.store.CODE_VERSIONS "
                        f"(known: {', '.join(sorted(CODE_VERSIONS))})") from None
 
 
@@ -116,6 +116,14 @@ def cache_key(kind: str, params: dict[str, Any], *, version: int | None = None,
            "code_version": code_version(kind) if version is None else version,
            "packages": key_packages() if packages is None else packages}
     return hashlib.sha256(canonical(doc).encode()).hexdigest()[:16]
+
+
+def tree_digest(tree: Any) -> str:
+    """A decision tree's identity in cache keys: the digest of its decision function
+    (:func:`ibt.distill.loop.tree_signature`)."""
+    from ibt.distill.loop import tree_signature
+
+    return hashlib.sha256(tree_signature(tree)).hexdigest()[:16]
 
 
 def legacy_cache_key(kind: str, params: dict[str, Any]) -> str:
@@ -193,7 +201,7 @@ def read_entry(entry: str | Path, codec: str, params: dict[str, Any] | None = No
                             f"{stored!r} but looked up as {codec!r}: the call sites of this kind "
                             "disagree (a kind's codec changes with its CODE_VERSIONS entry)")
     if stored != codec:
-        hint = (" (a pickle: run `python -m ibt.runs.cache_admin migrate-plain --trust-pickles`)"
+        hint = (" (a pickle: run `python -m ibt.cache.admin migrate-plain --trust-pickles`)"
                 if stored == "joblib" else "")
         raise LookupError(f"stored as {stored!r}, read as {codec!r}{hint}")
     if params is not None and canonical(manifest.get("params")) != canonical(params):
@@ -251,7 +259,7 @@ def load_or_compute(kind: str, params: dict[str, Any], compute: Callable[[], Any
                     cache_dir: str | Path, codec: str = "json", refresh: bool = False) -> Any:
     """Return the cached value for ``(kind, params)`` or compute, store and return it.
 
-    ``codec`` names the payload's format (:data:`ibt.runs.payloads.CODECS`). An entry whose
+    ``codec`` names the payload's format (:data:`ibt.cache.payloads.CODECS`). An entry whose
     manifest exists but that does not verify (see :func:`read_entry`) is a miss, recomputed and
     overwritten, with one :class:`CacheWarning` naming ``kind/key``; a cache folder that cannot
     be written returns the computed value with one warning. ``refresh=True`` recomputes and

@@ -1,6 +1,6 @@
 """A guard on the cache's code versions: a cached computation's source cannot change unseen.
 
-Every cache key carries its kind's code version (:data:`ibt.runs.cache.CODE_VERSIONS`), so a
+Every cache key carries its kind's code version (:data:`ibt.cache.store.CODE_VERSIONS`), so a
 changed computation misses instead of returning a stale result, but only if a person remembers to
 bump the number. This module takes that memory off the person: :data:`KIND_SOURCES` names, per
 kind, the modules whose code decides its results; ``data/cache/code_hashes.json`` records, per
@@ -12,7 +12,7 @@ When the test fails, decide: if the change can change a result, bump the kind's 
 ``CODE_VERSIONS`` (its entries then recompute); if it cannot (a docstring, a rename, a refactor
 that keeps every number), say so by rewriting the record::
 
-    python -m ibt.runs.code_guard --write
+    python -m ibt.cache.guard --write
 
 Either way the decision is explicit and reviewed in the diff of ``code_hashes.json``.
 """
@@ -26,9 +26,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ibt.cache.store import CODE_VERSIONS
 from ibt.files import atomic_write_text
 from ibt.paths import DATA_DIR
-from ibt.runs.cache import CODE_VERSIONS
 
 PACKAGE = Path(__file__).resolve().parent.parent
 RECORD = DATA_DIR / "cache" / "code_hashes.json"
@@ -117,7 +117,7 @@ def differences(record: dict[str, dict[str, object]]) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ibt.runs.code_guard",
+    parser = argparse.ArgumentParser(prog="python -m ibt.cache.guard",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--write", action="store_true",
                         help=f"record the current versions and sources in {RECORD}")

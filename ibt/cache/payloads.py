@@ -1,6 +1,6 @@
 """Plain-data payloads of the cache: exact codecs whose reading never runs code.
 
-Every cache payload (:mod:`ibt.runs.cache`) is bytes made by one codec of :data:`CODECS`:
+Every cache payload (:mod:`ibt.cache.store`) is bytes made by one codec of :data:`CODECS`:
 
 ==============  ======  ==========================================================================
 codec           file    what it stores

@@ -16,7 +16,7 @@ Beside them, ``temporary`` files (``.payload.*``, ``.manifest.*``) are what an a
 killed mid-way leaves; those younger than :data:`TEMP_GRACE_SECONDS` may be a write in progress
 and are left alone.
 
-``python -m ibt.runs.cache_admin stale`` lists what is not current (and the temporary files),
+``python -m ibt.cache.admin stale`` lists what is not current (and the temporary files),
 ``--reads FOLDER`` also the current entries that the lookups logged there (``IBT_CACHE_READS``)
 never touched, which is what ``make figures`` counts at its end (``--count``: one line, and none
 when there is nothing to count: the committed cache holds only what ``make figures`` reads, so
@@ -55,9 +55,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ibt.files import atomic_write_bytes, atomic_write_text
-from ibt.runs import payloads
-from ibt.runs.cache import (
+from ibt.cache import payloads
+from ibt.cache.store import (
     CODE_VERSIONS,
     KEY_PACKAGES,
     cache_key,
@@ -66,6 +65,7 @@ from ibt.runs.cache import (
     manifest_text,
     payload_digest,
 )
+from ibt.files import atomic_write_bytes, atomic_write_text
 
 STATUSES = ("current", "stale", "orphan", "incomplete", "legacy", "unmigrated", "temporary")
 #: Temporary files younger than this may belong to a write in progress: neither listed nor pruned.
@@ -255,7 +255,7 @@ def signature_map(cache_dir: str | Path, report: Migration) -> dict[tuple[str, s
     An old signature that stands for two different decision functions on one task (the
     collision the old signature allowed) is left out of the map and reported.
     """
-    from ibt.runs.grid import tree_digest
+    from ibt.cache.store import tree_digest
 
     found: dict[tuple[str, str], set[str]] = defaultdict(set)
     for entry in entries(cache_dir):
@@ -501,7 +501,7 @@ def migrate_plain(cache_dir: str | Path, *, dry_run: bool = False, progress: boo
 
     For a ``payload.joblib`` (unpickled by :func:`unpickle_legacy`: call this only on trusted
     files): the plain payload is encoded, decoded again and compared with the unpickled value
-    exactly (:func:`ibt.runs.payloads.difference`; distillations' tree signatures and
+    exactly (:func:`ibt.cache.payloads.difference`; distillations' tree signatures and
     predictions too), written, the manifest rewritten (``codec`` and ``payload_sha256``,
     everything else unchanged), and only then the pickle removed; each write is atomic, so an
     interrupted migration leaves entries that a re-run finishes. A JSON or CSV entry whose
@@ -583,7 +583,7 @@ def _digest(path: Path, kind: str, manifest: dict[str, Any], report: PlainMigrat
 def verify(cache_dir: str | Path) -> list[Entry]:
     """Entries whose payload does not verify against its manifest (what a lookup would
     recompute), as ``Entry(status="unverified")``; entries without a manifest are left out."""
-    from ibt.runs.cache import read_entry
+    from ibt.cache.store import read_entry
 
     out = []
     for entry in entries(cache_dir):
@@ -614,7 +614,7 @@ def _listing(found: Sequence[Entry]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     from ibt.paths import DATA_DIR
 
-    parser = argparse.ArgumentParser(prog="python -m ibt.runs.cache_admin",
+    parser = argparse.ArgumentParser(prog="python -m ibt.cache.admin",
                                      description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("command", choices=("stale", "prune", "verify", "summary", "migrate",
@@ -652,7 +652,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             why = (" (results of runs nothing asks for any more: a retrained expert, a changed "
                    "budget or setting; harmless)" if reads is not None else " (harmless)")
             print(f"{what}: {_listing(found).splitlines()[0]}{why}; list them with "
-                  f"`python -m ibt.runs.cache_admin {' '.join(again)}`, remove them with "
+                  f"`python -m ibt.cache.admin {' '.join(again)}`, remove them with "
                   "`prune`")
         elif args.count:  # nothing to say: every entry is current (and was read)
             pass

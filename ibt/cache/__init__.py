@@ -1,0 +1,6 @@
+"""The cache machinery, below the engine and the studies that use it: a content-addressed store
+of every computed result (:mod:`ibt.cache.store`: keys, code versions, atomic entries), its
+plain-data payload codecs (:mod:`ibt.cache.payloads`: JSON and npz, never pickles), upkeep and
+migrations (:mod:`ibt.cache.admin`) and the guard that keeps each kind's code version honest
+(:mod:`ibt.cache.guard`). Module paths are not part of a key, so where this code lives does not
+move any entry."""
