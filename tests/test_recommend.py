@@ -68,12 +68,11 @@ def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):
     rec = recommend(agent, budget=parse_budget("smoke"), leaf_limits=(8, 4), restarts=1,
                     cache_dir=tmp_path / "cache", progress=False, full=True)
     # every step (full): distillation smallest rung first, axis-aligned then relational at the
-    # same limit; then refinement; then the relational search (it covers axis-aligned trees)
+    # same limit; then the relational search (it covers axis-aligned trees); then refinement
     assert [(c.leaf_limit, c.label) for c in rec.candidates] == [
         (4, "distilled"), (4, "distilled, relational"), (8, "distilled"),
-        (8, "distilled, relational"), (4, "refined"), (4, "refined, relational"),
-        (8, "refined"), (8, "refined, relational"), (4, "searched, relational"),
-        (8, "searched, relational")]
+        (8, "distilled, relational"), (4, "searched, relational"), (8, "searched, relational"),
+        (4, "refined"), (4, "refined, relational"), (8, "refined"), (8, "refined, relational")]
     assert all(c.leaves <= c.leaf_limit for c in rec.candidates)
     for c in rec.candidates:  # every synthesiser's BT decides as its tree
         for bt in c.bts.values():

@@ -178,11 +178,11 @@ def ladder_text(rec: Recommendation) -> list[str]:
     else:
         lines += ["The ladder finished within its time budget: trees distilled at each leaf "
                   "limit, smallest first (axis-aligned, then relational), up to the first limit "
-                  "whose best BT kept the target; that limit's trees refined by return; and the "
-                  "structure search by return below it (at every limit when none kept the "
-                  "target) in the order of a binary search for the smallest limit whose "
-                  "searched BT keeps it. A Box task's trees are distilled then refined at each "
-                  "limit instead.", ""]
+                  "whose best BT kept the target; the structure search by return below it (at "
+                  "every limit when none kept the target) in the order of a binary search for "
+                  "the smallest limit whose searched BT keeps it; then, where no smaller limit "
+                  "kept it, the trees that kept it refined by return. A Box task's trees are "
+                  "distilled then refined at each limit instead.", ""]
     lines += [f"Steps done: {', '.join(ladder.steps)}.", ""]
     for c in rec.candidates:
         if c.search is not None:

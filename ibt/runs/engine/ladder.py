@@ -4,19 +4,21 @@ With the structure search (discrete actions), over the leaf limits (the rungs):
 
 1. **distil** at each rung in increasing order, each learner (axis-aligned, then relational
    at the same limit); stop at the first rung whose best BT keeps the target.
-2. **refine** that rung's trees by return: pruning may shrink the BT that kept the target.
-3. **search** by return (the structure search, with restarts, then polished: it refines its
+2. **search** by return (the structure search, with restarts, then polished: it refines its
    winner) at the rungs below that one, every rung when none kept the target, in the order of
    a binary search for the smallest rung whose searched BT keeps the target.
+3. **refine** by return the distilled trees that kept the target, where no smaller rung did:
+   pruning may shrink their BT.
 
 Distillation is cheap next to the by-return steps, so on a task where a small tree imitates
 the agent well the answer comes in seconds. Refinement is not run before a search: the search
 polishes its own winner, and on a task of slow episodes one refinement at the task's budget
 costs more than a search restart (LunarLander: 80,000 episodes, about 27 minutes on one
-core). A search costs the same episodes at every rung, so a binary search reaches the middle
-of the ladder in one search where the smallest-first order would spend the budget on the
-smallest rungs. The relational search runs where relational tests are on: its columns are
-the observed features and the relational candidates, so it covers the axis-aligned trees too.
+core), so it comes last, where the deadline may leave it out. A search costs the same
+episodes at every rung, so a binary search reaches the middle of the ladder in one search
+where the smallest-first order would spend the budget on the smallest rungs. The relational
+search runs where relational tests are on: its columns are the observed features and the
+relational candidates, so it covers the axis-aligned trees too.
 
 Without the search (a Box task's regression trees, or ``search=False``) each rung is
 distilled then refined, smallest first, up to the first rung that keeps the target.
@@ -235,8 +237,9 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
 def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
                    settings: Settings, learners: tuple[str, ...], deadline: Deadline) -> None:
     """With the structure search: distil at each rung (smallest first, stopping at the first
-    that keeps the target); refine the trees of that rung (pruning may shrink its BT); then
-    search the rungs below it (every rung when none kept the target) in bisection order."""
+    that keeps the target); search the rungs below it (every rung when none kept the target)
+    in bisection order; then, where no smaller rung kept the target, refine the trees that
+    kept it (pruning may shrink their BT)."""
     distilled: dict[int, dict[str, Any]] = {}
     kept = None
     for leaves in settings.rungs:
@@ -249,11 +252,9 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         if _kept_at(out, leaves, settings) and not settings.full:
             kept = leaves
             break
-    for leaves in settings.rungs if settings.full else [kept] if kept else []:
-        for learner in learners:
-            step(f"refine {learner} at {leaves} leaves", partial(
-                stages.refine, cfg, agent, distilled[leaves][learner], settings.seed,
-                settings.scale, settings.refine_episodes), leaves, "refined", learner)
+    keepers = [(c.leaf_limit, learner) for c in out.candidates for learner in learners
+               if c.leaf_limit == kept and (c.relational == (learner == "relational"))
+               and keeps(c, settings)]
     below = [r for r in settings.rungs if r in distilled and (kept is None or r < kept)]
     learner = search_learner(learners)
     largest = max(distilled)
@@ -277,8 +278,15 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
     if settings.full:
         for leaves in below:
             probe(leaves)
-        return
-    bisection(below, probe)
+        keepers = [(leaves, name) for leaves in distilled for name in learners]
+    else:
+        bisection(below, probe)
+        if any(_kept_at(out, leaves, settings) for leaves in below):
+            keepers = []  # a smaller rung kept the target
+    for leaves, name in keepers:
+        step(f"refine {name} at {leaves} leaves", partial(
+            stages.refine, cfg, agent, distilled[leaves][name], settings.seed, settings.scale,
+            settings.refine_episodes), leaves, "refined", name)
 
 
 def _distil_rung(cfg: Config, agent: Agent, leaves: int, settings: Settings,
