@@ -44,6 +44,7 @@ class Case:
     full: bool = True  # also climb the whole ladder (the stop rule's check)
     leaves: str | None = None  # --leaves (default: the pipeline's)
     confirm: int = 0  # also evaluate the recommended BT on this many further fresh episodes
+    max_nodes: int | None = None  # --max-nodes
 
 
 CASES = (
@@ -58,6 +59,8 @@ CASES = (
     Case("pendulum-sac", "Pendulum-v1", "sac", full=False),
     Case("lunarlander-ppo", "LunarLander-v3", "ppo", time="30m", full=False, confirm=1000),
     Case("lunarlander-dqn", "LunarLander-v3", "dqn", time="30m", full=False, confirm=1000),
+    Case("lunarlander-ppo-max25", "LunarLander-v3", "ppo", time="30m", full=False,
+         confirm=1000, max_nodes=25),
     # the best published LunarLander tree's size (22 leaves)
     Case("lunarlander-ppo-22", "LunarLander-v3", "ppo", time="60m", full=False, leaves="22",
          confirm=1000),
@@ -107,6 +110,8 @@ def run(case: Case) -> dict[str, object]:
         argv += ["--env-module", case.env_module]
     if case.leaves:
         argv += ["--leaves", case.leaves]
+    if case.max_nodes:
+        argv += ["--max-nodes", str(case.max_nodes)]
     jobs = os.environ.get("IBT_BENCH_JOBS")  # fewer processes, e.g. two benchmarks at once
     if jobs:
         argv += ["--jobs", jobs]
@@ -119,7 +124,8 @@ def run(case: Case) -> dict[str, object]:
     match = LINE.search(said)
     row: dict[str, object] = {
         "case": case.name, "task": case.task, "algo": case.algo,
-        "time_limit": case.time, "leaves": case.leaves or "default", "wall_s": round(wall, 1),
+        "time_limit": case.time, "leaves": case.leaves or "default",
+        "max_nodes": case.max_nodes, "wall_s": round(wall, 1),
         "exit": done.returncode,
         "bt_nodes": int(match.group(1)) if match else None,
         "retention_confirmed": float(match.group(2)) if match else None,
