@@ -1,4 +1,5 @@
-"""The anytime ladder: smallest leaf limit first, stopped by the target, a deadline or a signal.
+"""The anytime ladder: distillation smallest leaf limit first, the search by bisection, stopped
+by the target, a deadline or a signal.
 
 With the structure search (discrete actions), over the leaf limits (the rungs):
 
