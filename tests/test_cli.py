@@ -221,7 +221,9 @@ def test_ctrl_c_prints_one_line_exits_130_and_leaves_nothing(tmp_path):
                str(out / "tree.json"), "--iterations", "500", "--labels", "200",
                "--selection-episodes", "1"]
     with log.open("w") as err:
-        proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err, cwd=tmp_path)
+        # a shell's background job starts with SIGINT ignored, which Python keeps: restore it
+        proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err, cwd=tmp_path,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         deadline = time.monotonic() + 120
         while "imitation-bt CartPole" not in log.read_text():  # the progress bar: distilling
             assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
