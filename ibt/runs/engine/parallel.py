@@ -4,8 +4,9 @@ processes) or on a Dask cluster when ``IBT_DASK_SCHEDULER`` names a scheduler's 
 Each item's result depends on its own arguments only (seeds are explicit), so the three give
 the same results in the same order; each worker writes its own cache entries, which are
 atomic, so a cluster's workers and this process may share one cache folder. A worker first
-extends its import path with this process's, so it imports the same user modules (an
-environment module found in the current folder or added to the path by a caller).
+takes this process's working folder and extends its import path with this process's, so
+relative paths (a checkpoint) and user modules (an environment module in the current folder)
+resolve as they do here; loky reuses its workers, so this is done for every item.
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_j
         return [fn(*a) for a in args]
     from joblib import Parallel, delayed, parallel_config
 
-    paths = [os.path.abspath(p) if p else os.getcwd() for p in sys.path]
-    args = [(paths, fn, *a) for a in args]
-    fn = _with_import_path
+    here = (os.getcwd(), [os.path.abspath(p) if p else os.getcwd() for p in sys.path])
+    args = [(here, fn, *a) for a in args]
+    fn = _here
     if address:
         from dask.distributed import Client
 
@@ -43,7 +44,11 @@ def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_j
         return list(Parallel()(delayed(fn)(*a) for a in args))
 
 
-def _with_import_path(paths: list[str], fn: Callable[..., Any], *args: Any) -> Any:
-    """``fn(*args)`` in a worker whose import path holds ``paths`` too."""
+def _here(here: tuple[str, list[str]], fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)`` in a worker moved to the caller's folder (where it exists: a cluster's
+    machine may lack it) with the caller's import path added to its own."""
+    folder, paths = here
+    if os.path.isdir(folder):
+        os.chdir(folder)
     sys.path.extend(p for p in paths if p not in sys.path)
     return fn(*args)
