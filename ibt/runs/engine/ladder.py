@@ -253,9 +253,8 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         if _kept_at(out, leaves, settings) and not settings.full:
             kept = leaves
             break
-    keepers = [(c.leaf_limit, learner) for c in out.candidates for learner in learners
-               if c.leaf_limit == kept and (c.relational == (learner == "relational"))
-               and keeps(c, settings)]
+    keepers = [(kept, "relational" if c.relational else "axis") for c in out.candidates
+               if c.leaf_limit == kept and keeps(c, settings)]
     below = [r for r in settings.rungs if r in distilled and (kept is None or r < kept)]
     learner = search_learner(learners)
     largest = max(distilled)
