@@ -183,8 +183,8 @@ def confirm(case: Case, bt_file: Path, n: int) -> dict[str, object]:
 def full_ladder(case: Case, cache: Path, chosen_nodes: int) -> dict[str, object]:
     """Every rung and step on the run's cache: the smallest BT that keeps the target at any
     leaf limit, against the one the stop rule recommended."""
-    from ibt.runs.engine.agent import sb3_agent
-    from ibt.runs.recommend import recommend
+    from ibt.engine.agent import sb3_agent
+    from ibt.pipeline.recommend import recommend
     from ibt.tasks.catalogue import import_env_module, resolve_task
 
     if case.env_module:

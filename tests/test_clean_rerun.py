@@ -14,7 +14,7 @@ from ibt.cache.store import load_or_compute
 
 
 def test_notebook_provenance_names_no_git_commit():
-    from ibt.runs.pipeline import provenance
+    from ibt.runs.steps import provenance
 
     facts = provenance()
     assert "git_sha" not in facts and "python" in facts and "numpy" in facts

@@ -86,7 +86,7 @@ def test_pipeline_front_ticks_are_plain_numbers(monkeypatch, tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ibt.runs.recommend_files import draw_front
+    from ibt.pipeline.outputs import draw_front
 
     kept, close = [], plt.close
     monkeypatch.setattr(plt, "close", kept.append)  # draw_front's figure stays to be read

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from sklearn.tree import DecisionTreeRegressor
 
+from ibt.engine.stages import command_bt
 from ibt.export.btcpp import to_btcpp_xml
 from ibt.export.engine import run_btcpp, xml_commands
 from ibt.refine.commands import CommandArrays
-from ibt.runs.continuous import command_bt
 from ibt.synth.commands import command_tree
 from ibt.tasks.catalogue import get_task
 

@@ -10,6 +10,7 @@ import pytest
 from sklearn.tree import DecisionTreeRegressor
 
 from ibt.distill.continuous import regression_signature, regressor_doc, regressor_from_doc
+from ibt.engine.stages import command_tree_of
 from ibt.profiles import config
 from ibt.refine.commands import CommandArrays, CommandPopulation, refine_commands
 from ibt.runs import continuous
@@ -46,7 +47,7 @@ def test_command_arrays_document_and_tree_decide_alike(car_arrays):
     again = CommandArrays.from_doc(json.loads(json.dumps(car_arrays.to_doc())))
     x = CAR.sample_features(3000, np.random.default_rng(2))
     assert np.array_equal(again.actions(x), car_arrays.actions(x))
-    tree = continuous.command_tree_of(car_arrays, CAR)
+    tree = command_tree_of(car_arrays, CAR)
     assert np.array_equal(tree.actions(x), car_arrays.actions(x))
     population = CommandPopulation(car_arrays, car_arrays.structure.threshold[None],
                                    car_arrays.values[None])

@@ -103,7 +103,7 @@ def test_budget_runs_whole_episodes():
 
 def test_task_budgets_scale_the_profile_settings_alike_for_every_method():
     import ibt
-    from ibt.runs.pipeline import distill_config
+    from ibt.runs.steps import distill_config
 
     paper = ibt.config("paper")
     for method in METHODS:

@@ -6,6 +6,7 @@ import pandas as pd
 import pytest
 
 import ibt
+from ibt.engine import budgets
 from ibt.evaluate.rollouts import retention_norm
 from ibt.runs import front
 
@@ -86,7 +87,7 @@ def test_anchors_are_converted_with_our_expert_and_random_returns(monkeypatch):
 
 def test_smoke_refinement_budget_is_tiny_and_keeps_the_task_stages():
     cfg = ibt.config("smoke")
-    config = front.refine_config(cfg, "CartPole-v1", max_leaves=3)
+    config = budgets.refine_config(cfg, ibt.get_task("CartPole-v1"), max_leaves=3)
     assert config.episodes <= 240 and config.max_leaves == 3
     assert config.stages == ibt.get_task("CartPole-v1").refine.stages
 

@@ -245,7 +245,7 @@ def test_retention_is_undefined_not_an_error_where_the_agent_is_random():
 
 
 def test_the_report_flags_retention_above_the_agent_beyond_noise():
-    from ibt.runs.recommend_files import beyond_the_agent
+    from ibt.pipeline.outputs import beyond_the_agent
 
     def returns(mean: float, std: float) -> SimpleNamespace:
         return SimpleNamespace(mean=mean, std=std)

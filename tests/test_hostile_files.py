@@ -6,7 +6,7 @@ stderr naming the culprit, no traceback, every file of the user's folder as it w
 modes, link targets). They run in parallel (each is a second of imports). Then the write phase
 of ``pipeline`` is interrupted: SIGTERM before its commit leaves the old set, SIGINT inside it
 the new one (signals wait for the renames); in-process, a signal or a crash at every point of
-:func:`ibt.runs.owned_folder.write_set` leaves the old set, the new one, or a ``report.md``
+:func:`ibt.pipeline.owned_folder.write_set` leaves the old set, the new one, or a ``report.md``
 that says the set is incomplete. ``python -m tests.test_hostile_files`` prints the table of
 ``docs/hostile-files.md``.
 """
@@ -290,7 +290,7 @@ def test_every_point_of_the_write_phase_leaves_a_whole_set(tmp_path, monkeypatch
     the pipeline's (a rerun may write there)."""
     from ibt.cli.checks import Terminated
     from ibt.cli.main import _sigterm_unwinds
-    from ibt.runs import owned_folder
+    from ibt.pipeline import owned_folder
 
     for index, at in enumerate(POINTS):
         folder = owned_folder.claim(tmp_path / str(index), NAMES)
@@ -321,7 +321,7 @@ def test_every_point_of_the_write_phase_leaves_a_whole_set(tmp_path, monkeypatch
 
 
 def test_a_file_edited_during_the_run_is_not_replaced(tmp_path):
-    from ibt.runs import owned_folder
+    from ibt.pipeline import owned_folder
 
     folder = owned_folder.claim(tmp_path, NAMES)
     owned_folder.write_set(folder, NAMES, _writer("old", lambda _: None), "INCOMPLETE")

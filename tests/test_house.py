@@ -16,8 +16,8 @@ from ibt.tasks.settings import TaskBudget, hp
 from ibt.tasks.task import Task
 
 ROOT = Path(__file__).resolve().parent.parent
-BELOW_THE_BOUNDARY = ("experts", "evaluate", "distill", "refine", "synth", "bt", "export",
-                      "report")
+BELOW_THE_BOUNDARY = ("engine", "experts", "evaluate", "distill", "refine", "synth", "bt", "export",
+                      "report", "cache")
 
 
 def test_no_task_lookup_below_the_boundary():

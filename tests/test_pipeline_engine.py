@@ -14,10 +14,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from ibt.cli import main
-from ibt.runs.engine import stages
-from ibt.runs.engine.agent import callable_agent, sb3_agent
-from ibt.runs.engine.ladder import Deadline, Settings, bisection, run_ladder
-from ibt.runs.recommend import choose, parse_budget, recommend
+from ibt.engine import stages
+from ibt.engine.agent import callable_agent, sb3_agent
+from ibt.engine.ladder import Deadline, Settings, bisection, run_ladder
+from ibt.pipeline.recommend import choose, parse_budget, recommend
 from tests.test_recommend import FILES, _candidate
 
 pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from ibt.cli import main
-from ibt.runs.engine.agent import sb3_agent
-from ibt.runs.recommend import Budget, Candidate, choose, held_out, parse_budget
+from ibt.engine.agent import sb3_agent
+from ibt.pipeline.recommend import Budget, Candidate, choose, held_out, parse_budget
 
 pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
 FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
@@ -59,7 +59,7 @@ def test_pipeline_writes_its_files_and_a_report_that_reproduces_it(agents, tmp_p
 def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):
     from ibt.evaluate.policies import BTPolicy
     from ibt.evaluate.rollouts import retention_norm, rollout
-    from ibt.runs.recommend import recommend
+    from ibt.pipeline.recommend import recommend
     from ibt.synth.imitation import verify
     from ibt.tasks.catalogue import resolve_task
 
@@ -84,7 +84,7 @@ def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):
     assert np.allclose(again.returns, rec.bt.returns)
     assert rec.retention == pytest.approx(retention_norm(again.mean, rec.agent.mean,
                                                          rec.random.mean))
-    from ibt.runs.recommend_files import rules_text, write_outputs
+    from ibt.pipeline.outputs import rules_text, write_outputs
 
     write_outputs(rec, tmp_path / "cart")
     assert set(FILES) <= {p.name for p in (tmp_path / "cart").iterdir()}
@@ -136,7 +136,7 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, extra, says)
 
 
 def test_the_report_is_plain_data_of_the_run(agents, tmp_path):
-    from ibt.runs.recommend import as_facts, recommend
+    from ibt.pipeline.recommend import as_facts, recommend
     from ibt.tasks.catalogue import resolve_task
 
     rec = recommend(sb3_agent(resolve_task("ToyLine-v0"), "ppo", agents / "line.zip"),

@@ -36,7 +36,7 @@ RECORD = DATA_DIR / "cache" / "code_hashes.json"
 _ROLLOUT = ("evaluate/rollouts.py", "evaluate/policies.py", "tasks/task.py", "tasks/builtin.py",
             "tasks/settings.py", "envs/package_delivery.py", "envs/__init__.py")
 _TREES = ("refine/tree_arrays.py", "distill/loop.py")
-_ENGINE = ("runs/engine/stages.py", "runs/engine/agent.py")  # keys and agents of every stage
+_ENGINE = ("engine/stages.py", "engine/agent.py", "engine/budgets.py")  # keys, agents, budgets
 _AGENTS = ("experts/expert.py", "experts/callable_agent.py")
 _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decision_list.py",
           "synth/baselines.py", "synth/registry.py", "bt/model.py", "bt/executors.py",
@@ -44,13 +44,13 @@ _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decis
 
 #: The modules (relative to the package) whose code decides each cache kind's results.
 KIND_SOURCES: dict[str, tuple[str, ...]] = {
-    "distill": ("distill/loop.py", "distill/schedules.py", *_AGENTS, "runs/pipeline.py",
+    "distill": ("distill/loop.py", "distill/schedules.py", *_AGENTS, "runs/steps.py",
                 *_ENGINE, *_ROLLOUT),
     "expert-eval": (*_AGENTS, "runs/grid.py", *_ENGINE, *_ROLLOUT),
     "tree-eval": ("runs/grid.py", *_ENGINE, *_TREES, *_ROLLOUT),
     "bt-eval": ("runs/grid.py", *_ENGINE, "bt/model.py", "bt/executors.py", *_ROLLOUT),
     "synthesis": ("runs/grid.py", *_ENGINE, *_TREES, *_SYNTH),
-    "refine": ("refine/by_return.py", "runs/front.py", *_TREES, *_ROLLOUT),
+    "refine": ("refine/by_return.py", "runs/front.py", *_ENGINE, *_TREES, *_ROLLOUT),
     "front-bt": ("runs/front.py", *_TREES, *_SYNTH),
     "executors": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
     "evolve": ("refine/structure.py", "runs/search.py", *_AGENTS, *_ENGINE, *_TREES,
@@ -63,20 +63,20 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                      *_AGENTS, "experts/training.py", *_ENGINE, *_ROLLOUT),
     "box-refine": ("refine/commands.py", "refine/by_return.py", "runs/continuous.py",
                    "runs/front.py", *_ENGINE, *_TREES, *_ROLLOUT),
-    "box-eval": ("runs/continuous.py", "synth/commands.py", "refine/commands.py", *_TREES,
+    "box-eval": ("runs/continuous.py", *_ENGINE, "synth/commands.py", "refine/commands.py", *_TREES,
                  *_SYNTH, *_ROLLOUT),
     "distill-rel": ("distill/relational.py", "bt/linear.py", "distill/loop.py",
                     "distill/schedules.py", *_AGENTS, "runs/relational.py",
-                    "runs/pipeline.py", *_ENGINE, *_ROLLOUT),
+                    "runs/steps.py", *_ENGINE, *_ROLLOUT),
     "refine-rel": ("refine/relational.py", "refine/by_return.py", "distill/relational.py",
                    "bt/linear.py", "runs/relational.py", "runs/front.py",
-                   "runs/relational_search.py", "refine/relational_structure.py", *_TREES,
+                   "runs/relational_search.py", "refine/relational_structure.py", *_ENGINE, *_TREES,
                    *_ROLLOUT),
     "evolve-rel": ("refine/relational_structure.py", "refine/relational.py",
                    "refine/structure.py", "distill/relational.py", "bt/linear.py",
                    "runs/relational_search.py", "runs/search.py", *_AGENTS, *_ENGINE,
                    *_TREES, *_ROLLOUT),
-    "returns": ("runs/engine/stages.py", *_AGENTS, "experts/training.py", *_TREES, *_SYNTH,
+    "returns": ("engine/stages.py", *_AGENTS, "experts/training.py", *_TREES, *_SYNTH,
                 "synth/commands.py", *_ROLLOUT),
     "evolve-select": ("refine/relational_structure.py", "refine/relational.py",
                       "refine/structure.py", "distill/relational.py", "bt/linear.py",

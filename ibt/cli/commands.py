@@ -216,9 +216,10 @@ def _refine_commands(doc: dict[str, Any], task: Any, out: Path, overrides: dict[
 
     from ibt.bt.model import Commands
     from ibt.distill.tree_file import save_tree_file
+    from ibt.engine.budgets import box_refine_task_config
+    from ibt.engine.stages import command_tree_of
     from ibt.refine.commands import CommandArrays, refine_commands
     from ibt.refine.tree_arrays import TreeArrays
-    from ibt.runs.continuous import box_refine_task_config, command_tree_of
     from ibt.synth.commands import DECIMALS
 
     if overrides.pop("max_leaves") is not None:
@@ -451,9 +452,9 @@ def _disagreement(xml: Path, run: Any) -> str:
 
 
 def _pipeline(args: argparse.Namespace) -> int:
-    from ibt.runs.engine.agent import callable_agent, sb3_agent
-    from ibt.runs.owned_folder import FolderError, claim, release, take
-    from ibt.runs.recommend_files import OUTPUTS
+    from ibt.engine.agent import callable_agent, sb3_agent
+    from ibt.pipeline.outputs import OUTPUTS
+    from ibt.pipeline.owned_folder import FolderError, claim, release, take
 
     # every path is checked before any work: the folder, the cache, the checkpoint
     out = check_output_folder(args.output, "-o")
@@ -485,8 +486,8 @@ def _pipeline(args: argparse.Namespace) -> int:
     note = folder.note()
     if note:
         print(note)
-    from ibt.runs.recommend import recommend
-    from ibt.runs.recommend_files import write_outputs
+    from ibt.pipeline.outputs import write_outputs
+    from ibt.pipeline.recommend import recommend
 
     first = take(folder)  # marked as the pipeline's before the long work: a rerun may write
     try:
@@ -532,7 +533,7 @@ def _keep(text: str) -> float:
 def _budget(text: str) -> Any:
     """An argparse type: ``smoke``, a scale (``2x``, at most 1000x) or refinement episodes per
     leaf limit, at most refine's ``--episodes`` maximum."""
-    from ibt.runs.recommend import parse_budget
+    from ibt.pipeline.recommend import parse_budget
 
     try:
         budget = parse_budget(text if len(text) <= 40 else "?")

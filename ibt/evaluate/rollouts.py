@@ -40,7 +40,7 @@ def selection_seeds(n: int, run_seed: int, offset: int = 0) -> list[int]:
 
 class ReturnStats:
     """The mean and standard deviation of a record's episode ``returns`` (its one home: a
-    :class:`Rollout`, a stage's :class:`ibt.runs.engine.stages.Returns`)."""
+    :class:`Rollout`, a stage's :class:`ibt.engine.stages.Returns`)."""
 
     returns: Any  # an array or a list of episode returns
 

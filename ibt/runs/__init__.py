@@ -1,6 +1,6 @@
-"""Runs and their artifacts: the engine of cached stages and the pipeline's anytime ladder
-(``engine``), the content-addressed cache, the paper grid, the front, the studies notebooks
-call, and ``pipeline``'s recommendation and files."""
+"""The studies: the paper grid, the size-retention front and Imitation-BT+, the structure
+searches, the relational and continuous studies, the headline BTs and the notebooks' steps, each
+a composition of the engine's cached stages (:mod:`ibt.engine`) over the committed experts."""
 
 
 def __getattr__(name: str) -> object:

@@ -19,56 +19,35 @@ The notebook (``notebooks/10_continuous.ipynb``) calls :func:`continuous_table`.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from ibt.bt.model import BehaviorTree, Commands
+from ibt.bt.model import BehaviorTree
 from ibt.cache.store import load_or_compute
-from ibt.distill.continuous import (
-    BoxDistillConfig,
-)
+from ibt.engine import stages
+from ibt.engine.agent import committed_agent
+from ibt.engine.budgets import box_refine_config
+from ibt.engine.stages import command_bt
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.commands import CommandArrays, CommandRefinement
-from ibt.runs.engine import stages
-from ibt.runs.engine.agent import committed_agent
-from ibt.runs.front import refine_config
 from ibt.runs.grid import expert_evaluation
 from ibt.synth.commands import (
     CommandBTPolicy,
-    CommandTree,
-    command_name,
-    command_task,
 )
-from ibt.synth.registry import front_synthesisers, get_synthesiser
+from ibt.synth.registry import front_synthesisers
 from ibt.tasks.catalogue import get_task
-from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
-
-COMMAND_TOLERANCE = 0.01  #: choose_commands' tolerance (share of expert minus random return)
-BOX_SELECTION_EPISODES = 20  #: held-out episodes choosing the distillation's tree and its k
-
-
-def box_config(cfg: Config, task: Task, method: str, leaves: int | None) -> BoxDistillConfig:
-    """The task's distillation budget at a leaf limit, shrunk under the ``smoke`` profile."""
-    overrides: dict[str, Any] = {"method": method,
-                                 "selection_episodes": min(BOX_SELECTION_EPISODES,
-                                                           cfg.selection_episodes)}
-    if leaves is not None:
-        overrides["max_leaf_nodes"] = leaves
-    if cfg.profile == "smoke":
-        overrides.update(n_iterations=2, labels_per_iteration=300, eval_envs=3)
-    return BoxDistillConfig.for_task(task, **overrides)
 
 
 def box_distill_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                        leaves: int | None = None) -> dict[str, Any]:
     """A continuous distillation of the committed expert (the engine's stage,
-    :func:`ibt.runs.engine.stages.distillation`): ``iterations``, ``best_index``, ``tree`` (a
+    :func:`ibt.engine.stages.distillation`): ``iterations``, ``best_index``, ``tree`` (a
     :func:`ibt.distill.continuous.regressor_doc`), ``wall_seconds``."""
     spec = get_task(task)
     overrides: dict[str, Any] = {} if leaves is None else {"max_leaf_nodes": leaves}
@@ -76,52 +55,24 @@ def box_distill_cached(cfg: Config, task: str | Task, algo: str, method: str, se
                                method, **overrides)
 
 
-def command_tree_of(arrays: CommandArrays, task: Task) -> CommandTree:
-    """The :class:`ibt.synth.commands.CommandTree` of command arrays on ``task``."""
-    names = tuple(command_name(task, row) for row in arrays.values)
-    commands = Commands(task.action_names, task.action_units or ("",) * task.n_actions,
-                        tuple(tuple(float(v) for v in row) for row in arrays.values))
-    return CommandTree(arrays.structure.to_sklearn(), commands, command_task(task, names))
-
-
 def commands_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                     leaves: int | None = None) -> dict[str, Any]:
     """The distilled tree's leaves merged into the fewest named commands that keep its
-    held-out return (:func:`ibt.runs.engine.stages.commands`)."""
+    held-out return (:func:`ibt.engine.stages.commands`)."""
     spec = get_task(task)
     run = box_distill_cached(cfg, spec, algo, method, seed, leaves)
     return stages.commands(cfg, committed_agent(spec, algo, cfg.experts_dir), run["tree"], seed)
 
 
-def box_refine_config(cfg: Config, task: Task) -> RefineConfig:
-    """The task's refinement budget (``Task.refine``), shrunk under ``smoke``."""
-    config = refine_config(cfg, task)
-    return replace(config, stages=tuple(s for s in config.stages if s == "cma") or ("cma",))
-
-
-def box_refine_task_config(task: Task, **overrides: Any) -> RefineConfig:
-    """The task's refinement budget with ``overrides``, its CMA-ES stages only (a user's task
-    without a budget of its own gets the default's)."""
-    config = replace(task.refine, **overrides)
-    return replace(config, stages=tuple(s for s in config.stages if s == "cma") or ("cma",))
-
-
 def refine_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                   leaves: int | None = None) -> CommandRefinement:
     """The command tree of :func:`commands_cached`, refined by return with the task's budget
-    (:func:`ibt.runs.engine.stages.command_refinement`)."""
+    (:func:`ibt.engine.stages.command_refinement`)."""
     spec = get_task(task)
     source = commands_cached(cfg, spec, algo, method, seed, leaves)["arrays"]
     return stages.command_refinement(cfg, committed_agent(spec, algo, cfg.experts_dir),
                                      CommandArrays.from_doc(source), seed,
                                      box_refine_config(cfg, spec))
-
-
-def command_bt(arrays: CommandArrays, task: Task, method: str) -> BehaviorTree:
-    """One synthesiser's verified BT of a command tree, with its command table."""
-    tree = command_tree_of(arrays, task)
-    bt = get_synthesiser(method)(tree.tree, tree.task).bt  # every synthesiser verifies
-    return replace(bt, commands=tree.commands)
 
 
 def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,

@@ -27,7 +27,7 @@ normalised scale with our random baselines and experts.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,12 +37,13 @@ from tqdm import tqdm
 from ibt.bt.model import BehaviorTree
 from ibt.cache.store import load_or_compute
 from ibt.distill.loop import Distillation
+from ibt.engine.budgets import refine_config
+from ibt.engine.stages import refinement_cached, smallest_bt
 from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
-from ibt.refine.by_return import RefineConfig, Refinement, refine
-from ibt.runs.engine.stages import smallest_bt
+from ibt.refine.by_return import RefineConfig, Refinement
 from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
-from ibt.runs.pipeline import distill_cached
+from ibt.runs.steps import distill_cached
 from ibt.synth.registry import front_synthesisers, get_synthesiser
 from ibt.tasks.catalogue import TASKS, get_task
 from ibt.tasks.task import Task
@@ -117,24 +118,6 @@ def bar_of(task: str, max_leaves: int) -> dict[str, Any]:
             "bar_seeds": BAR_SEEDS}
 
 
-#: a refinement's settings under the ``smoke`` profile (seconds, not minutes): the task's
-#: refinement here and the structure search's polish (:func:`ibt.runs.search.polish_config`)
-SMOKE_REFINE: dict[str, Any] = {"cma_generations": 2, "cma_episodes": 2, "cma_popsize": 4,
-                                "sweep_episodes": 2, "sweep_rounds": 1, "selection_episodes": 3,
-                                "n_envs": 8}
-
-
-def refine_config(cfg: Config, task: str | Task, **overrides: Any) -> RefineConfig:
-    """The task's refinement budget (:func:`ibt.refine.by_return.task_config`), shrunk to
-    seconds under the ``smoke`` profile."""
-    from ibt.refine.by_return import task_config
-
-    config = task_config(get_task(task), **overrides)
-    if cfg.profile == "smoke":
-        config = replace(config, episodes=min(config.episodes, 240), **SMOKE_REFINE)
-    return config
-
-
 def source_run(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                leaves: int | None) -> Distillation:
     """A cached distillation at a leaf limit (``None``: the task's budget, i.e. the grid run)."""
@@ -164,28 +147,6 @@ def refine_cached(cfg: Config, task: str | Task, algo: str, seed: int, source_me
     config = config or refine_config(cfg, spec, max_leaves=max_leaves)
     tree = source_run(cfg, spec, algo, source_method, seed, None).best_tree
     return refinement_cached(cfg, spec, algo, seed, source_method, tree, config)
-
-
-def refinement_cached(cfg: Config, task: Task, algo: str, seed: int, source_method: str,
-                      tree: Any, config: RefineConfig) -> Refinement:
-    """``tree`` refined by return (:func:`ibt.refine.by_return.refine`, or
-    :func:`ibt.refine.relational.refine_relational` for a relational tree), cached under
-    ``refine`` or ``refine-rel`` on the method it came from, the tree and the settings: the
-    one home of a cached refinement (Imitation-BT+, the searches' polish, the recommender)."""
-    from ibt.distill.relational import RelationalTreeClassifier
-    from ibt.refine.relational import refine_relational
-
-    relational = isinstance(tree, RelationalTreeClassifier)
-    params = {"task": task.name, "algo": algo, "seed": seed, "source_method": source_method,
-              "tree": tree_digest(tree), "config": config.as_params()}
-
-    def compute() -> Refinement:
-        if relational:
-            return refine_relational(tree, task, config, seed, progress=cfg.progress)
-        return refine(tree, task, config, seed, progress=cfg.progress)
-
-    return load_or_compute("refine-rel" if relational else "refine", params, compute,
-                           cache_dir=cfg.cache_dir, codec="refinement", refresh=cfg.refresh)
 
 
 @dataclass(frozen=True)

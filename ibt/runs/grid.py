@@ -24,6 +24,8 @@ from tqdm import tqdm
 from ibt.cache.store import load_or_compute
 from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
+from ibt.engine.stages import bt_digest as _bt_digest
+from ibt.engine.stages import tree_digest
 from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import (
     episode_metrics,
@@ -37,9 +39,7 @@ from ibt.experts.training import expert_statuses
 from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.report.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
-from ibt.runs.engine.stages import bt_digest as _bt_digest
-from ibt.runs.engine.stages import tree_digest
-from ibt.runs.pipeline import distill_cached
+from ibt.runs.steps import distill_cached
 from ibt.synth.registry import SYNTHESISERS, get_synthesiser
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
@@ -86,7 +86,7 @@ def seed_budget(cells: Iterable[Cell]) -> list[Cell]:
 def uncached(cfg: Config, cells: Iterable[Cell]) -> list[Cell]:
     """The cells whose distillation is not in the cache yet (what ``pending`` may list)."""
     from ibt.cache.store import is_cached
-    from ibt.runs.pipeline import distill_params
+    from ibt.runs.steps import distill_params
 
     return [c for c in cells if not is_cached("distill", distill_params(
         cfg, c.task, c.algo, c.method, c.seed, **dict(c.overrides)), cache_dir=cfg.cache_dir)]
@@ -352,7 +352,7 @@ def synthesize_grid(cfg: Config, results: pd.DataFrame, baseline_source: str = "
     so), except for the seed-best BT of each method, which is rolled out in the environment
     itself (``matches_tree`` checks that the returns agree) and written to ``data/trees/``.
     """
-    from ibt.runs.pipeline import save_tree
+    from ibt.runs.steps import save_tree
 
     sources = {name: baseline_source if s.source == "baseline" else s.source
                for name, s in SYNTHESISERS.items()}

@@ -22,31 +22,25 @@ import pandas as pd
 from tqdm import tqdm
 
 from ibt.distill.loop import Distillation
+from ibt.engine.budgets import RELATIONAL
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
 
-METHOD = "imitation-bt+rel"  # the distillation method (ibt.distill.loop.METHODS)
+METHOD = RELATIONAL  # the distillation method (ibt.distill.loop.METHODS)
 REFINED = "imitation-bt+rel+"  # its tree refined by return
-
-
-def learner_params() -> dict[str, Any]:
-    """The relational learner's settings, part of every ``distill-rel`` key."""
-    from ibt.distill.relational import RelationalSettings
-
-    return RelationalSettings().as_params()
 
 
 def distill_rel(cfg: Config, task: Task, algo: str, seed: int, leaves: int | None = None, *,
                 checkpoint: str | Path | None = None) -> Distillation:
     """An ``imitation-bt+rel`` distillation at a leaf limit (``None``: the task's budget) of
     the committed expert or ``checkpoint``: the engine's stage
-    (:func:`ibt.runs.engine.stages.distillation`), cached on the checkpoint's digest, the
+    (:func:`ibt.engine.stages.distillation`), cached on the checkpoint's digest, the
     loop's settings and the learner's."""
-    from ibt.runs.engine import stages
-    from ibt.runs.engine.agent import committed_agent, sb3_agent
+    from ibt.engine import stages
+    from ibt.engine.agent import committed_agent, sb3_agent
 
     agent = (committed_agent(task, algo, cfg.experts_dir) if checkpoint is None
              else sb3_agent(task, algo, checkpoint, check=False))
@@ -57,9 +51,10 @@ def distill_rel(cfg: Config, task: Task, algo: str, seed: int, leaves: int | Non
 def refined_tree(cfg: Config, task: Task, algo: str, seed: int, leaves: int | None,
                  config: RefineConfig | None = None) -> tuple[Any, Refinement]:
     """``imitation-bt+rel+``: the distilled relational tree at ``leaves``, refined by return
-    with the task's budget (:func:`ibt.runs.front.refine_config`, pruned to ``leaves``)."""
+    with the task's budget (:func:`ibt.engine.budgets.refine_config`, pruned to ``leaves``)."""
+    from ibt.engine.budgets import refine_config
+    from ibt.engine.stages import refinement_cached
     from ibt.refine.relational import best_tree
-    from ibt.runs.front import refine_config, refinement_cached
 
     tree = distill_rel(cfg, task, algo, seed, leaves).best_tree
     config = config or refine_config(cfg, task, max_leaves=leaves)

@@ -27,9 +27,10 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from ibt.cache.store import load_or_compute
+from ibt.engine.budgets import evolve_config, polish_config
 from ibt.profiles import Config
 from ibt.refine.structure import Evolution
-from ibt.runs.search import StructureResult, evolve_config, polish_config, seed_trees
+from ibt.runs.search import StructureResult, seed_trees
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -70,9 +71,9 @@ def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_l
     picks leaf actions; ``selection_episodes``: the held-out episodes that choose among its
     finalists where not the task's (the same search, chosen again:
     :func:`ibt.refine.structure.reselect`, cached as ``evolve-select``; not under ``smoke``)."""
+    from ibt.engine.agent import committed_agent
+    from ibt.engine.stages import evolve_key, evolve_one
     from ibt.refine.relational_structure import reselect_relational
-    from ibt.runs.engine.agent import committed_agent
-    from ibt.runs.engine.stages import evolve_key, evolve_one
 
     spec = get_task(task)
     config = search_config(cfg, spec, max_leaves, search_episodes, leaf_rule)
@@ -123,8 +124,8 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
     ``scaled_weights``: candidate weights scaled to each pair's spreads; ``leaf_rule``: how the
     expert's help picks leaf actions ("vote" or "score"); ``selection_episodes``: the held-out
     episodes of the search's and the polish's choices where not the task's."""
+    from ibt.engine.stages import refinement_cached
     from ibt.refine.relational_structure import winner
-    from ibt.runs.front import refinement_cached
 
     spec = get_task(task)
     evolution = evolve_rel_cached(cfg, spec, algo, seed, max_leaves, plus_seeds,

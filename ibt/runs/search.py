@@ -18,57 +18,27 @@ with the share of episodes at or above a return, is :func:`protocol_evaluation`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ibt.bt.model import BehaviorTree
 from ibt.cache.store import load_or_compute
+from ibt.engine.agent import committed_agent
+from ibt.engine.budgets import evolve_config, polish_config
+from ibt.engine.stages import evolve_one, refinement_cached
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
 from ibt.refine.structure import Evolution
-from ibt.runs.engine.agent import committed_agent
-from ibt.runs.engine.stages import evolve_one
-from ibt.runs.front import (
-    SMOKE_REFINE,
-    STRUCTURE,
-    plus_run,
-    ranked_sources,
-    refinement_cached,
-)
+from ibt.runs.front import STRUCTURE, plus_run, ranked_sources
 from ibt.runs.grid import _bt_digest
 from ibt.tasks.catalogue import get_task
-from ibt.tasks.settings import EvolveConfig, RefineConfig
 from ibt.tasks.task import Task
 
 __all__ = ["STRUCTURE", "evolve_cached", "expert_help_table", "protocol_evaluation",
            "structure_run"]
-
-
-def evolve_config(cfg: Config, task: Task, max_leaves: int, use_expert: bool = True
-                  ) -> EvolveConfig:
-    """The task's structure-search budget at a leaf limit, shrunk to seconds under ``smoke``;
-    ``use_expert=False`` is the ablation without the expert's labels (reward alone)."""
-    config = replace(task.evolve or EvolveConfig(), max_leaves=max_leaves)
-    if not use_expert:
-        config = replace(config, use_expert=False)
-    if cfg.profile == "smoke":
-        config = replace(config, episodes=240, mu=2, lam=4, generation_episodes=2,
-                         pool_episodes=2, selection_episodes=3, finalists=3, n_envs=8,
-                         refine_episodes=60)
-    return config
-
-
-def polish_config(cfg: Config, config: EvolveConfig) -> RefineConfig:
-    """CMA-ES on the thresholds, then free pruning, under the same leaf limit."""
-    polish = RefineConfig(stages=("cma", "prune"), episodes=config.refine_episodes,
-                          cma_generations=400, cma_episodes=16, max_leaves=config.max_leaves,
-                          selection_episodes=config.selection_episodes)
-    if cfg.profile == "smoke":
-        polish = replace(polish, **SMOKE_REFINE)
-    return polish
 
 
 def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
@@ -82,7 +52,7 @@ def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
 def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
                   use_expert: bool = True) -> Evolution:
     """The structure search of one run: the engine's stage
-    (:func:`ibt.runs.engine.stages.evolve_one`) from this study's seed trees, cached on them and
+    (:func:`ibt.engine.stages.evolve_one`) from this study's seed trees, cached on them and
     its settings."""
     spec = get_task(task)
     config = evolve_config(cfg, spec, max_leaves, use_expert)

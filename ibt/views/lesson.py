@@ -37,7 +37,7 @@ from ibt.evaluate.policies import CompiledTree
 from ibt.evaluate.rollouts import TRAIN_SEED_BASE, retention_norm, rollout
 from ibt.experts.expert import Expert, load_expert
 from ibt.profiles import Config
-from ibt.runs.pipeline import distill_cached
+from ibt.runs.steps import distill_cached
 from ibt.synth.logic import Variables, minimise
 from ibt.synth.rules import action_template_library, leaf_paths, literal_count
 from ibt.tasks.catalogue import Task, get_task

@@ -15,6 +15,8 @@ import pandas as pd
 from ibt.bt.json_io import save_json
 from ibt.bt.model import BehaviorTree
 from ibt.distill.loop import Distillation, DistillConfig
+from ibt.engine import budgets, stages
+from ibt.engine.agent import committed_agent
 from ibt.evaluate.rollouts import (
     episode_metrics,
     final_seeds,
@@ -25,8 +27,6 @@ from ibt.evaluate.rollouts import (
 from ibt.experts import expert as experts
 from ibt.experts.expert import Expert
 from ibt.profiles import Config
-from ibt.runs.engine import stages
-from ibt.runs.engine.agent import committed_agent
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
@@ -34,8 +34,8 @@ from ibt.tasks.task import Task
 def distill_config(cfg: Config, task: str | Task, method: str = "imitation-bt",
                    **overrides: Any) -> DistillConfig:
     """The task's distillation settings scaled to the profile's budgets
-    (:func:`ibt.runs.engine.stages.distill_config`)."""
-    return stages.distill_config(cfg, get_task(task), method, **overrides)
+    (:func:`ibt.engine.budgets.distill_config`)."""
+    return budgets.distill_config(cfg, get_task(task), method, **overrides)
 
 
 def distill_params(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
@@ -48,7 +48,7 @@ def distill_params(cfg: Config, task: str | Task, algo: str, method: str = "imit
 def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> Distillation:
     """A distillation run of the committed expert (the engine's stage,
-    :func:`ibt.runs.engine.stages.distillation`), from the cache when the same expert,
+    :func:`ibt.engine.stages.distillation`), from the cache when the same expert,
     settings and seed ran before: the key holds the checkpoint's digest, so a retrained expert
     is a cache miss."""
     agent = committed_agent(get_task(task), algo, cfg.experts_dir)

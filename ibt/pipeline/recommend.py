@@ -1,8 +1,8 @@
 """One command from an agent to a recommended BT: ``python -m ibt pipeline TASK ALGO``.
 
-The product side of the engine (:mod:`ibt.runs.engine`): for a user's agent (an SB3 checkpoint,
+The product side of the engine (:mod:`ibt.engine`): for a user's agent (an SB3 checkpoint,
 discrete or Box, or a ``MODULE:FUNCTION`` callable) it climbs the anytime ladder
-(:func:`ibt.runs.engine.ladder.run_ladder`: distil at increasing leaf limits, axis-aligned
+(:func:`ibt.engine.ladder.run_ladder`: distil at increasing leaf limits, axis-aligned
 and relational trees at the same limit, refine the first limit's trees that keep the target,
 then the structure search with restarts below it, by bisection), turns every tree into every
 registered synthesiser's verified BT and recommends the smallest BT that keeps ``keep`` of the
@@ -20,7 +20,7 @@ and from refinement's and the search's: the *choice* episodes (the final-evaluat
 :func:`ibt.evaluate.rollouts.final_seeds`) place every candidate on the front and choose the
 recommendation; the *confirmation* episodes (the next block of final seeds) then measure the
 chosen BT, the agent and the uniform random policy afresh, so the reported retention is not the
-maximum of many noisy scores. Files are written by :mod:`ibt.runs.recommend_files`.
+maximum of many noisy scores. Files are written by :mod:`ibt.pipeline.outputs`.
 """
 
 from __future__ import annotations
@@ -34,12 +34,12 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ibt.engine import stages
+from ibt.engine.agent import RANDOM_SEED, Agent
+from ibt.engine.ladder import Candidate, Deadline, Ladder, Settings, eligible, run_ladder
+from ibt.engine.stages import Returns, bt_digest, held_out
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
-from ibt.runs.engine import stages
-from ibt.runs.engine.agent import RANDOM_SEED, Agent
-from ibt.runs.engine.ladder import Candidate, Deadline, Ladder, Settings, eligible, run_ladder
-from ibt.runs.engine.stages import Returns, bt_digest, held_out
 from ibt.tasks.task import Task
 
 __all__ = ["DEFAULT_KEEP", "LEAF_LIMITS", "RANDOM_SEED", "Budget", "Candidate", "Recommendation",

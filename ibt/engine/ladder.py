@@ -39,11 +39,11 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
+from ibt.engine import stages
+from ibt.engine.agent import Agent
+from ibt.engine.parallel import parallel_map
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
-from ibt.runs.engine import stages
-from ibt.runs.engine.agent import Agent
-from ibt.runs.engine.parallel import parallel_map
 from ibt.signals import STOP_SIGNALS, stop_reason
 
 

@@ -1,6 +1,6 @@
 """The files of ``python -m ibt pipeline``: ``bt.json``, ``bt.xml``, ``bt.png``, ``bt.svg``,
 ``front.png`` and ``report.md`` (:func:`write_outputs`), written as one set into a folder the
-pipeline owns (:mod:`ibt.runs.owned_folder`)."""
+pipeline owns (:mod:`ibt.pipeline.owned_folder`)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from ibt.runs.owned_folder import OwnedFolder, claim, write_set
-from ibt.runs.recommend import Recommendation
+from ibt.pipeline.owned_folder import OwnedFolder, claim, write_set
+from ibt.pipeline.recommend import Recommendation
 
 #: the set a run writes; report.md last (it says what the others are)
 OUTPUTS = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
@@ -328,11 +328,11 @@ def incomplete_text(rec: Recommendation, out: Path) -> str:
 
 
 def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Path]:
-    """Write :data:`OUTPUTS` into ``out`` as one set (:func:`ibt.runs.owned_folder.write_set`:
+    """Write :data:`OUTPUTS` into ``out`` as one set (:func:`ibt.pipeline.owned_folder.write_set`:
     an interrupted write leaves the old set, the new one, or a ``report.md`` saying the set is
     incomplete); a run stopped early says so under the report's title.
 
-    ``out`` is a folder checked by :func:`ibt.runs.owned_folder.claim` (the CLI claims it
+    ``out`` is a folder checked by :func:`ibt.pipeline.owned_folder.claim` (the CLI claims it
     before any work), or a path, claimed here (:class:`FolderError` if it holds files the
     pipeline did not write)."""
     from ibt.bt.json_io import save_json

@@ -1,6 +1,6 @@
 """The method's stages for one agent, each a cached function (:mod:`ibt.cache.store`).
 
-A stage takes the :class:`~ibt.runs.engine.agent.Agent` and plain settings and returns a tree:
+A stage takes the :class:`~ibt.engine.agent.Agent` and plain settings and returns a tree:
 
 * :func:`distil`: the interactive loop at a leaf limit with one of three learners, ``axis``
   (CART), ``relational`` (splits on ``w1 * x_i + w2 * x_j``) or ``box`` (a regression tree
@@ -8,7 +8,7 @@ A stage takes the :class:`~ibt.runs.engine.agent.Agent` and plain settings and r
 * :func:`refine`: refinement by return (thresholds, leaves, pruning; commands' values too);
 * :func:`search`: the structure search by return (Imitation-BT+S, or +SR with relational
   tests), ``restarts`` seeds mapped over cores or a Dask cluster
-  (:func:`ibt.runs.engine.parallel.parallel_map`), one of them chosen on held-out episodes of
+  (:func:`ibt.engine.parallel.parallel_map`), one of them chosen on held-out episodes of
   its own (never the final ones), then polished;
 * :func:`measure`: every registered synthesiser's verified BT of a tree, and the tree's
   returns on a block of held-out episodes.
@@ -23,16 +23,16 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
 from ibt.cache.store import load_or_compute, tree_digest
+from ibt.engine import budgets
+from ibt.engine.agent import Agent
 from ibt.evaluate.rollouts import FINAL_SEED_BASE, ReturnStats, rollout, selection_seeds
 from ibt.profiles import Config
-from ibt.runs.engine.agent import Agent
 from ibt.tasks.task import Task
 
 LEARNERS = ("axis", "relational", "box")
@@ -106,20 +106,6 @@ def leaves_of(tree: Any) -> int:
 # --- distil -----------------------------------------------------------------------------------
 
 
-def distill_config(cfg: Config, task: Task, method: str = "imitation-bt", **overrides: Any
-                   ) -> Any:
-    """The task's distillation settings (its catalogue entry's ``budget``) scaled to the
-    profile's budgets, with ``overrides`` (e.g. ``max_leaf_nodes``)."""
-    from ibt.distill.loop import DistillConfig
-
-    budget = task.budget
-    labels = max(50, round(budget.labels_per_iteration * cfg.labels_scale))
-    iterations = min(cfg.n_iterations, budget.max_iterations or cfg.n_iterations)
-    settings = {"n_iterations": iterations, "labels_per_iteration": labels,
-                "selection_episodes": cfg.selection_episodes * budget.selection_scale, **overrides}
-    return DistillConfig.for_task(task, method=method, **settings)
-
-
 def distill_key(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
                 method: str | None = None, **overrides: Any) -> tuple[str, dict, Any]:
     """The cache kind, key parameters and settings of one distillation (``overrides`` of the
@@ -127,23 +113,19 @@ def distill_key(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
     where the ``distill``, ``distill-rel`` and ``box-distill`` keys are written."""
     task = agent.task
     if learner == "box":
-        from ibt.runs.continuous import box_config
-
         leaves = overrides.pop("max_leaf_nodes", None)
         if overrides:
             raise TypeError(f"a Box distillation takes max_leaf_nodes only, not "
                             f"{sorted(overrides)}")
-        config = box_config(cfg, task, method or box_method(agent), leaves)
+        config = budgets.box_config(cfg, task, method or box_method(agent), leaves)
         kind = "box-distill"
         extra: dict[str, Any] = {}
     else:
-        from ibt.runs.relational import METHOD, learner_params
-
         relational = learner == "relational"
-        config = distill_config(cfg, task, METHOD if relational else method or "imitation-bt",
-                                **overrides)
+        method = budgets.RELATIONAL if relational else method or "imitation-bt"
+        config = budgets.distill_config(cfg, task, method, **overrides)
         kind = "distill-rel" if relational else "distill"
-        extra = {"learner": learner_params()} if relational else {}
+        extra = {"learner": budgets.learner_params()} if relational else {}
     params = {"task": task.key, "algo": agent.algo, "seed": seed, "config": config.as_params(),
               **extra, "expert_sha256": agent.digest}
     return kind, params, config
@@ -202,20 +184,19 @@ def commands(cfg: Config, agent: Agent, tree_doc: dict[str, Any], seed: int) -> 
     agent, identifies it in the key."""
     from ibt.distill.continuous import regressor_from_doc
     from ibt.refine.commands import CommandArrays
-    from ibt.runs.continuous import BOX_SELECTION_EPISODES, COMMAND_TOLERANCE
     from ibt.synth.commands import DECIMALS, choose_commands
 
     task = agent.task
-    n = min(BOX_SELECTION_EPISODES, cfg.selection_episodes)
+    n = min(budgets.BOX_SELECTION_EPISODES, cfg.selection_episodes)
     params = {"task": task.key, "algo": agent.algo, "seed": seed, "tree": doc_digest(tree_doc),
-              "episodes": n, "tolerance": COMMAND_TOLERANCE, "decimals": DECIMALS}
+              "episodes": n, "tolerance": budgets.COMMAND_TOLERANCE, "decimals": DECIMALS}
 
     def choose() -> dict[str, Any]:
         seeds = selection_seeds(n, seed, offset=1)
         scale = rollout(task, agent.load().act, seeds).mean - rollout(
             task, agent.random_act(seed), seeds).mean
         chosen, rows = choose_commands(regressor_from_doc(tree_doc), task, seeds,
-                                       scale=scale, tolerance=COMMAND_TOLERANCE, seed=seed)
+                                       scale=scale, tolerance=budgets.COMMAND_TOLERANCE, seed=seed)
         return {"arrays": CommandArrays.from_command_tree(chosen).to_doc(), "rows": rows,
                 "scale": scale}
 
@@ -224,20 +205,6 @@ def commands(cfg: Config, agent: Agent, tree_doc: dict[str, Any], seed: int) -> 
 
 
 # --- refine -----------------------------------------------------------------------------------
-
-
-def refine_config(cfg: Config, task: Any, scale: float, episodes: int | None,
-                  commands: bool = False) -> Any:
-    """The task's refinement budget scaled by ``scale`` (or ``episodes`` per tree); CMA-ES
-    stages only for a command tree (its values are tuned with its thresholds)."""
-    from ibt.runs.continuous import box_refine_config
-    from ibt.runs.front import refine_config as front_config
-
-    config = box_refine_config(cfg, task) if commands else front_config(cfg, task)
-    total = episodes or max(10, round(config.episodes * scale))
-    generations = max(config.cma_generations,
-                      math.ceil(config.cma_generations * total / config.episodes))
-    return replace(config, episodes=total, cma_generations=generations)
 
 
 def command_refinement(cfg: Config, agent: Agent, arrays: Any, seed: int, config: Any) -> Any:
@@ -260,6 +227,29 @@ def command_refinement(cfg: Config, agent: Agent, arrays: Any, seed: int, config
     return CommandRefinement.from_doc(doc)
 
 
+def refinement_cached(cfg: Config, task: Task, algo: str, seed: int, source_method: str,
+                      tree: Any, config: Any) -> Any:
+    """``tree`` refined by return (:func:`ibt.refine.by_return.refine`, or
+    :func:`ibt.refine.relational.refine_relational` for a relational tree), cached under
+    ``refine`` or ``refine-rel`` on the method it came from, the tree and the settings: the
+    one home of a cached refinement (Imitation-BT+, the searches' polish, the pipeline)."""
+    from ibt.distill.relational import RelationalTreeClassifier
+    from ibt.refine.by_return import refine as refine_by_return
+    from ibt.refine.relational import refine_relational
+
+    relational = isinstance(tree, RelationalTreeClassifier)
+    params = {"task": task.name, "algo": algo, "seed": seed, "source_method": source_method,
+              "tree": tree_digest(tree), "config": config.as_params()}
+
+    def compute() -> Any:
+        if relational:
+            return refine_relational(tree, task, config, seed, progress=cfg.progress)
+        return refine_by_return(tree, task, config, seed, progress=cfg.progress)
+
+    return load_or_compute("refine-rel" if relational else "refine", params, compute,
+                           cache_dir=cfg.cache_dir, codec="refinement", refresh=cfg.refresh)
+
+
 def refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float = 1.0,
            episodes: int | None = None) -> Any:
     """``tree`` refined by return (kinds ``refine``, ``refine-rel``, ``box-refine``): the
@@ -268,16 +258,15 @@ def refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float = 1.0,
 
     task = agent.task
     if isinstance(tree, CommandArrays):
-        config = refine_config(cfg, task, scale, episodes, commands=True)
+        config = budgets.scaled_refine_config(cfg, task, scale, episodes, commands=True)
         return command_refinement(cfg, agent, tree, seed, config).best
     from ibt.distill.relational import RelationalTreeClassifier
     from ibt.refine.relational import best_tree
-    from ibt.runs.front import refinement_cached
-    from ibt.runs.relational import METHOD as RELATIONAL
 
-    source = RELATIONAL if isinstance(tree, RelationalTreeClassifier) else "imitation-bt"
+    source = budgets.RELATIONAL if isinstance(tree, RelationalTreeClassifier) else "imitation-bt"
     return best_tree(refinement_cached(cfg, task, agent.algo, seed, source, tree,
-                                       refine_config(cfg, task, scale, episodes)))
+                                       budgets.scaled_refine_config(cfg, task, scale,
+                                                                    episodes)))
 
 
 # --- structure search -------------------------------------------------------------------------
@@ -291,19 +280,6 @@ class SearchInfo:
     choice_episodes: int
     choice_means: tuple[float, ...]
     chosen: int  # index into seeds
-
-
-def search_config(cfg: Config, task: Any, leaves: int, scale: float) -> Any:
-    """The task's structure-search budget at ``leaves`` (:func:`ibt.runs.search.evolve_config`),
-    its episodes scaled by ``scale`` (not under ``smoke``)."""
-    from ibt.runs.search import evolve_config
-
-    config = evolve_config(cfg, task, leaves)
-    if cfg.profile != "smoke" and scale != 1.0:
-        per_generation = (config.mu + config.lam) * config.generation_episodes
-        config = replace(config, episodes=max(round(config.episodes * scale),
-                                              per_generation + config.pool_episodes))
-    return config
 
 
 def evolve_key(agent: Agent, sources: list[Any], config: Any, seed: int, relational: bool, *,
@@ -379,14 +355,12 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     ``next_round(seconds)``, given the last round's wall time, says whether another round may
     start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
     with more time adds the others from the cache."""
+    from ibt.engine.parallel import parallel_map
     from ibt.evaluate.policies import TreePolicy
     from ibt.refine.relational import best_tree
-    from ibt.runs.engine.parallel import parallel_map
-    from ibt.runs.front import refinement_cached
-    from ibt.runs.search import polish_config
 
     task = agent.task
-    config = search_config(cfg, task, leaves, scale)
+    config = budgets.search_config(cfg, task, leaves, scale)
     quiet = replace(cfg, progress=cfg.progress and restarts == 1)
     width = max(1, min(n_jobs, restarts))
     records: list[Any] = []
@@ -411,11 +385,31 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     chosen = max(range(len(trees)), key=lambda i: (means[i], -leaves_of(trees[i]), -i))
     polish = refinement_cached(cfg, task, agent.algo, seeds[chosen],
                                SEARCHED_REL if relational else SEARCHED, trees[chosen],
-                               polish_config(cfg, config))
+                               budgets.polish_config(cfg, config))
     return best_tree(polish), SearchInfo(seeds, len(choice), means, chosen)
 
 
 # --- measure ----------------------------------------------------------------------------------
+
+
+def command_tree_of(arrays: Any, task: Task) -> Any:
+    """The :class:`ibt.synth.commands.CommandTree` of command arrays on ``task``."""
+    from ibt.bt.model import Commands
+    from ibt.synth.commands import CommandTree, command_name, command_task
+
+    names = tuple(command_name(task, row) for row in arrays.values)
+    commands = Commands(task.action_names, task.action_units or ("",) * task.n_actions,
+                        tuple(tuple(float(v) for v in row) for row in arrays.values))
+    return CommandTree(arrays.structure.to_sklearn(), commands, command_task(task, names))
+
+
+def command_bt(arrays: Any, task: Task, method: str) -> Any:
+    """One synthesiser's verified BT of a command tree, with its command table."""
+    from ibt.synth.registry import get_synthesiser
+
+    tree = command_tree_of(arrays, task)
+    bt = get_synthesiser(method)(tree.tree, tree.task).bt  # every synthesiser verifies
+    return replace(bt, commands=tree.commands)
 
 
 def synthesise(cfg: Config, agent: Agent, tree: Any, seed: int) -> dict[str, Any]:
@@ -438,8 +432,6 @@ def synthesise(cfg: Config, agent: Agent, tree: Any, seed: int) -> dict[str, Any
 
         def compute(name: str = name, synthesiser: Any = synthesiser) -> dict[str, Any]:
             if commands:
-                from ibt.runs.continuous import command_bt
-
                 bt = command_bt(tree, task, name)  # every synthesiser verifies
                 return {"row": {"method": name, "nodes": bt.node_count, "equivalent": True},
                         "bt": bt}
