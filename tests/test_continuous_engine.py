@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from sklearn.tree import DecisionTreeRegressor
 
-from ibt.engine.stages import command_bt
+from ibt.engine.synthesis import command_bt
 from ibt.export.btcpp import to_btcpp_xml
 from ibt.export.engine import run_btcpp, xml_commands
 from ibt.refine.commands import CommandArrays

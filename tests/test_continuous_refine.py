@@ -10,7 +10,7 @@ import pytest
 from sklearn.tree import DecisionTreeRegressor
 
 from ibt.distill.continuous import regression_signature, regressor_doc, regressor_from_doc
-from ibt.engine.stages import command_tree_of
+from ibt.engine.synthesis import command_tree_of
 from ibt.profiles import config
 from ibt.refine.commands import CommandArrays, CommandPopulation, refine_commands
 from ibt.runs import continuous

@@ -36,7 +36,8 @@ RECORD = DATA_DIR / "cache" / "code_hashes.json"
 _ROLLOUT = ("evaluate/rollouts.py", "evaluate/policies.py", "tasks/task.py", "tasks/builtin.py",
             "tasks/settings.py", "envs/package_delivery.py", "envs/__init__.py")
 _TREES = ("refine/tree_arrays.py", "distill/loop.py")
-_ENGINE = ("engine/stages.py", "engine/agent.py", "engine/budgets.py")  # keys, agents, budgets
+_ENGINE = ("engine/stages.py", "engine/synthesis.py", "engine/agent.py",  # keys, agents,
+           "engine/budgets.py")  # budgets
 _AGENTS = ("experts/expert.py", "experts/callable_agent.py")
 _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decision_list.py",
           "synth/baselines.py", "synth/registry.py", "bt/model.py", "bt/executors.py",

@@ -9,7 +9,7 @@ json            .json   a JSON value (sorted keys; numbers, strings, lists, obje
 csv             .csv    a ``pandas.DataFrame`` (no index)
 distillation    .npz    an :class:`ibt.distill.loop.Distillation` (its fitted trees included)
 refinement      .npz    an :class:`ibt.refine.by_return.Refinement` (its ``TreeArrays``)
-synthesis       .json   ``{"row": dict, "bt": BehaviorTree}`` (``ibt.runs.grid.synthesize_run``)
+synthesis       .json   ``{"row": dict, "bt": BehaviorTree}`` (``ibt.engine.synthesis.synthesised``)
 ==============  ======  ==========================================================================
 
 An ``.npz`` payload is written by ``np.savez_compressed`` and read by ``np.load(...,

@@ -217,7 +217,7 @@ def _refine_commands(doc: dict[str, Any], task: Any, out: Path, overrides: dict[
     from ibt.bt.model import Commands
     from ibt.distill.tree_file import save_tree_file
     from ibt.engine.budgets import box_refine_task_config
-    from ibt.engine.stages import command_tree_of
+    from ibt.engine.synthesis import command_tree_of
     from ibt.refine.commands import CommandArrays, refine_commands
     from ibt.refine.tree_arrays import TreeArrays
     from ibt.synth.commands import DECIMALS

@@ -4,7 +4,8 @@ by the target, a deadline or a signal.
 With the structure search (discrete actions), over the leaf limits (the rungs):
 
 1. **distil** at each rung in increasing order, each learner (axis-aligned, then relational
-   at the same limit); stop at the first rung whose best BT keeps the target.
+   at the same limit); stop at the first rung whose best BT keeps the target, or whose every
+   BT is over ``max_nodes`` (a larger limit grows the tree; its search may still shrink it).
 2. **search** by return (the structure search, with restarts, then polished: it refines its
    winner) at the rungs below that one, every rung when none kept the target, in the order of
    a binary search for the smallest rung whose searched BT keeps the target.
@@ -39,7 +40,7 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
-from ibt.engine import stages
+from ibt.engine import stages, synthesis
 from ibt.engine.agent import Agent
 from ibt.engine.parallel import parallel_map
 from ibt.evaluate.rollouts import retention_norm
@@ -139,6 +140,7 @@ class Ladder:
     stopped: str | None = None  # "time", "interrupted" or the callback's reason; None: done
     steps: list[str] = field(default_factory=list)  # the steps done, in order
     skipped: list[str] = field(default_factory=list)  # the steps left undone by a stop
+    ruled_out: list[str] = field(default_factory=list)  # steps the ladder chose not to take
     notes: list[str] = field(default_factory=list)
 
 
@@ -192,7 +194,7 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         took[kind] = max(took.get(kind, 0.0), deadline.clock() - began)
         running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
-        bts = stages.synthesise(cfg, agent, tree, settings.seed)
+        bts = synthesis.synthesise(cfg, agent, tree, settings.seed)
         ret = stages.measure(cfg, agent, tree, bts, choice)
         out.candidates.append(Candidate(
             leaves, stage, tree, bts, ret.mean, ret.std,
@@ -214,7 +216,8 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     except STOP_SIGNALS as err:  # Ctrl-C or SIGTERM inside a step: that step is not cached
         out.stopped = stop_reason(err)
     if out.stopped:
-        out.skipped = running + [s for s in plan if s not in out.steps and s not in running]
+        out.skipped = running + [s for s in plan if s not in out.steps and s not in running
+                                 and s not in out.ruled_out]
     return out
 
 
@@ -252,6 +255,17 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             for i, learner in enumerate(learners)}
         if _kept_at(out, leaves, settings) and not settings.full:
             kept = leaves
+            break
+        if _all_too_large(out, leaves, settings) and not settings.full:
+            larger = [r for r in settings.rungs if r > leaves]
+            out.ruled_out += [f"distil {learner} at {r} leaves" for r in larger
+                              for learner in learners]
+            out.ruled_out += [f"search {search_learner(learners)} at {r} leaves"
+                              for r in larger]
+            if larger:
+                out.notes.append(f"no leaf limit above {leaves} was distilled: every BT at "
+                                 f"{leaves} leaves had more than {settings.max_nodes} nodes "
+                                 "(--max-nodes), and a larger limit grows the tree")
             break
     keepers = [(kept, "relational" if c.relational else "axis") for c in out.candidates
                if c.leaf_limit == kept and keeps(c, settings)]
@@ -332,6 +346,12 @@ def _retention(mean: float, agent_mean: float, random_mean: float) -> float:
 
 def _kept_at(ladder: Ladder, leaves: int, settings: Settings) -> bool:
     return any(c.leaf_limit == leaves and keeps(c, settings) for c in ladder.candidates)
+
+
+def _all_too_large(ladder: Ladder, leaves: int, settings: Settings) -> bool:
+    """Every BT distilled at ``leaves`` is over ``--max-nodes``: larger limits only grow."""
+    made = [c for c in ladder.candidates if c.leaf_limit == leaves]
+    return bool(made) and not any(eligible(c, settings) for c in made)
 
 
 def _distinct(trees: list[Any]) -> list[Any]:

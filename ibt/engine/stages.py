@@ -10,8 +10,8 @@ A stage takes the :class:`~ibt.engine.agent.Agent` and plain settings and return
   tests), ``restarts`` seeds mapped over cores or a Dask cluster
   (:func:`ibt.engine.parallel.parallel_map`), one of them chosen on held-out episodes of
   its own (never the final ones), then polished;
-* :func:`measure`: every registered synthesiser's verified BT of a tree, and the tree's
-  returns on a block of held-out episodes.
+* :func:`measure`: a tree's returns on a block of held-out episodes (its verified BTs, every
+  registered synthesiser's, are the synthesis stage's: :mod:`ibt.engine.synthesis`).
 
 Keys are the project's: the kinds and parameters of the grid's and the front's homes, with
 the agent's digest (``expert_sha256``: a checkpoint's bytes, or a callable's module and name)
@@ -390,61 +390,6 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
 
 
 # --- measure ----------------------------------------------------------------------------------
-
-
-def command_tree_of(arrays: Any, task: Task) -> Any:
-    """The :class:`ibt.synth.commands.CommandTree` of command arrays on ``task``."""
-    from ibt.bt.model import Commands
-    from ibt.synth.commands import CommandTree, command_name, command_task
-
-    names = tuple(command_name(task, row) for row in arrays.values)
-    commands = Commands(task.action_names, task.action_units or ("",) * task.n_actions,
-                        tuple(tuple(float(v) for v in row) for row in arrays.values))
-    return CommandTree(arrays.structure.to_sklearn(), commands, command_task(task, names))
-
-
-def command_bt(arrays: Any, task: Task, method: str) -> Any:
-    """One synthesiser's verified BT of a command tree, with its command table."""
-    from ibt.synth.registry import get_synthesiser
-
-    tree = command_tree_of(arrays, task)
-    bt = get_synthesiser(method)(tree.tree, tree.task).bt  # every synthesiser verifies
-    return replace(bt, commands=tree.commands)
-
-
-def synthesise(cfg: Config, agent: Agent, tree: Any, seed: int) -> dict[str, Any]:
-    """Every registered synthesiser's BT of ``tree`` (each verified against it, cached): a
-    command tree's BTs carry its command table."""
-    from ibt.refine.commands import CommandArrays
-    from ibt.synth.registry import SYNTHESISERS, front_synthesisers
-
-    task = agent.task
-    commands = isinstance(tree, CommandArrays)
-    names = front_synthesisers() if commands else tuple(SYNTHESISERS)
-    bts = {}
-    for name in names:
-        synthesiser = SYNTHESISERS[name]
-        params: dict[str, Any] = {"task": task.key, "algo": agent.algo, "method": name,
-                                  "seed": seed, "source_method": "pipeline",
-                                  "tree": tree_key(tree)}
-        if synthesiser.version is not None:
-            params["method_version"] = synthesiser.version_number()
-
-        def compute(name: str = name, synthesiser: Any = synthesiser) -> dict[str, Any]:
-            if commands:
-                bt = command_bt(tree, task, name)  # every synthesiser verifies
-                return {"row": {"method": name, "nodes": bt.node_count, "equivalent": True},
-                        "bt": bt}
-            from ibt.synth.imitation import verify
-
-            bt = synthesiser(tree, task).bt
-            checked = verify(bt, tree, task)  # raises NotEquivalentError: nothing is cached
-            return {"row": {"method": name, "nodes": bt.node_count, "equivalent": True,
-                            "states_checked": checked}, "bt": bt}
-
-        bts[name] = load_or_compute("synthesis", params, compute, cache_dir=cfg.cache_dir,
-                                    codec="synthesis", refresh=cfg.refresh)["bt"]
-    return bts
 
 
 def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: list[int]

@@ -53,7 +53,7 @@ class CommandArrays:
     @classmethod
     def from_command_tree(cls, tree: Any) -> CommandArrays:
         """The arrays of a :class:`ibt.synth.commands.CommandTree` (its classifier's leaves
-        hold command ids; the conversion back is :func:`ibt.engine.stages.command_tree_of`)."""
+        hold command ids; the conversion back is :func:`ibt.engine.synthesis.command_tree_of`)."""
         return cls(TreeArrays.from_sklearn(tree.tree), tree.commands.array().astype(np.float64))
 
     def with_parameters(self, threshold: np.ndarray, values: np.ndarray) -> CommandArrays:

@@ -31,7 +31,7 @@ from ibt.cache.store import load_or_compute
 from ibt.engine import stages
 from ibt.engine.agent import committed_agent
 from ibt.engine.budgets import box_refine_config
-from ibt.engine.stages import command_bt
+from ibt.engine.synthesis import command_bt
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.commands import CommandArrays, CommandRefinement

@@ -10,7 +10,6 @@ seed, so where it runs never changes its row.
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -40,7 +39,7 @@ from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.report.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
 from ibt.runs.steps import distill_cached
-from ibt.synth.registry import SYNTHESISERS, get_synthesiser
+from ibt.synth.registry import SYNTHESISERS
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
@@ -243,45 +242,11 @@ def synthesize_run(cfg: Config, task: str | Task, algo: str, method: str, seed: 
     Returns ``{"row": structure facts, "bt": BehaviorTree}``; a BT that disagrees with its tree
     raises :class:`ibt.synth.imitation.NotEquivalentError` and nothing is cached or written.
     """
-    from ibt.synth.imitation import DEFAULT_STRATEGIES, imitation_bt, verify
+    from ibt.engine.synthesis import synthesised
 
     spec = get_task(task)
-    synthesiser = get_synthesiser(method)
     tree = distill_cached(cfg, spec, algo, source_method, seed, **overrides).best_tree
-    params = {"task": spec.name, "algo": algo, "method": method, "seed": seed,
-              "source_method": source_method, "tree": tree_digest(tree)}
-    if synthesiser.version is not None:  # its own version: a changed method re-keys its BTs
-        params["method_version"] = synthesiser.version_number()
-
-    def compute() -> dict[str, Any]:
-        started = time.process_time()
-        result = synthesiser(tree, spec)
-        seconds = time.process_time() - started
-        checked = verify(result.bt, tree, spec)
-        types = result.bt.node_types()
-        row = {"task": spec.name, "expert": algo, "method": method, "seed": seed,
-               "source_method": source_method, "nodes": result.bt.node_count,
-               "tree_nodes": int(tree.tree_.node_count), "conditions": types["condition"],
-               **{f"n_{k}": v for k, v in types.items()},
-               "default_action": (spec.action_names[result.default_action]
-                                  if result.default_action is not None else ""),
-               "default_strategy": result.default_strategy or "",
-               "equivalent": True, "states_checked": checked}
-        if method == "decision-list":  # what the search tried and what it cost
-            row.update({"search_winner": result.search["winner"],
-                        "search_work": result.search["work"],
-                        "synthesis_cpu_seconds": round(seconds, 3)})
-        if method == "imitation-bt":
-            for strategy in DEFAULT_STRATEGIES:
-                row[f"nodes_{strategy}"] = imitation_bt(
-                    tree, spec, default_strategy=strategy).bt.node_count
-            with_dc = imitation_bt(tree, spec, dont_cares=True)
-            verify(with_dc.bt, tree, spec)
-            row["nodes_dont_cares"] = with_dc.bt.node_count
-        return {"row": row, "bt": result.bt}
-
-    return load_or_compute("synthesis", params, compute, cache_dir=cfg.cache_dir,
-                           codec="synthesis", refresh=cfg.refresh)
+    return synthesised(cfg, spec, algo, method, seed, source_method, tree, analysis=True)
 
 
 def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
