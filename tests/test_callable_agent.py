@@ -319,7 +319,8 @@ def test_box_distillation_of_a_controller_imitates_it(tmp_path):
 
 
 def test_the_structure_search_takes_a_callable_agent_as_its_expert(tmp_path):
-    from ibt.refine.structure import _Mutator, evolve
+    from ibt.refine.structure import evolve
+    from ibt.refine.structure_mutations import _Mutator
     from ibt.tasks.settings import EvolveConfig
 
     source = RULE + "act.q_values = lambda obs: [0.0, obs[2] + 0.1 * obs[3]]\n"

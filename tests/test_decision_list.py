@@ -15,22 +15,10 @@ from sklearn.tree import DecisionTreeClassifier
 
 from ibt.bt.executors import decide_batch
 from ibt.bt.model import Action, Selector, iterate
-from ibt.synth.decision_list import (
-    MAX_WORK,
-    METHOD,
-    Factorer,
-    _box,
-    _Budget,
-    _Leaf,
-    _paths,
-    _root,
-    _Search,
-    _view,
-    decides_like,
-    decision_list_bt,
-    simplify,
-    size_table,
-)
+from ibt.synth.decision_list import MAX_WORK, METHOD, decision_list_bt, size_table
+from ibt.synth.decision_list_exact import _box, decides_like, simplify
+from ibt.synth.decision_list_factoring import Factorer, _root
+from ibt.synth.decision_list_search import _Budget, _Leaf, _paths, _Search, _view
 from ibt.synth.imitation import imitation_bt, verify
 from ibt.synth.rules import Literal, leaf_witnesses
 from ibt.tasks.catalogue import Task

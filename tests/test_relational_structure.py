@@ -127,7 +127,7 @@ def test_forest_reads_only_the_tested_columns_and_decides_as_on_every_column(see
     """The search's rollouts compute only the derived columns some split tests
     (:meth:`Forest.reader`); decisions equal the Forest's on the fully augmented rows,
     for a rollout's few rows (walked in Python) and for full batches alike."""
-    from ibt.refine.structure import Forest
+    from ibt.refine.forest import Forest
     from ibt.tasks.catalogue import get_task
 
     task = get_task("CartPole-v1")

@@ -12,7 +12,9 @@ from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
 import ibt
-from ibt.refine.structure import Forest, _Mutator, arrays, evolve, nested, reselect
+from ibt.refine.forest import Forest
+from ibt.refine.structure import evolve, reselect
+from ibt.refine.structure_mutations import _Mutator, arrays, nested
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import EvolveConfig
 

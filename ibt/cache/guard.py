@@ -40,8 +40,9 @@ _ENGINE = ("engine/stages.py", "engine/synthesis.py", "engine/agent.py",  # keys
            "engine/budgets.py")  # budgets
 _AGENTS = ("experts/expert.py", "experts/callable_agent.py")
 _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decision_list.py",
-          "synth/baselines.py", "synth/registry.py", "bt/model.py", "bt/executors.py",
-          "bt/coverage.py")
+          "synth/decision_list_search.py", "synth/decision_list_exact.py",
+          "synth/decision_list_factoring.py", "synth/baselines.py", "synth/registry.py",
+          "bt/model.py", "bt/executors.py", "bt/coverage.py")
 
 #: The modules (relative to the package) whose code decides each cache kind's results.
 KIND_SOURCES: dict[str, tuple[str, ...]] = {
@@ -54,8 +55,8 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
     "refine": ("refine/by_return.py", "runs/front.py", *_ENGINE, *_TREES, *_ROLLOUT),
     "front-bt": ("runs/front.py", *_TREES, *_SYNTH),
     "executors": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
-    "evolve": ("refine/structure.py", "runs/search.py", *_AGENTS, *_ENGINE, *_TREES,
-               *_ROLLOUT),
+    "evolve": ("refine/structure.py", "refine/structure_mutations.py", "refine/forest.py",
+               "runs/search.py", *_AGENTS, *_ENGINE, *_TREES, *_ROLLOUT),
     "protocol": ("runs/search.py", "bt/model.py", "bt/executors.py", *_ROLLOUT),
     "speed": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
     "box-distill": ("distill/continuous.py", "runs/continuous.py", *_AGENTS, *_ENGINE,
@@ -71,16 +72,18 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                     "runs/steps.py", *_ENGINE, *_ROLLOUT),
     "refine-rel": ("refine/relational.py", "refine/by_return.py", "distill/relational.py",
                    "bt/linear.py", "runs/relational.py", "runs/front.py",
-                   "runs/relational_search.py", "refine/relational_structure.py", *_ENGINE, *_TREES,
-                   *_ROLLOUT),
+                   "runs/relational_search.py", "refine/relational_structure.py",
+                   "refine/structure.py", "refine/structure_mutations.py", "refine/forest.py",
+                   *_ENGINE, *_TREES, *_ROLLOUT),
     "evolve-rel": ("refine/relational_structure.py", "refine/relational.py",
-                   "refine/structure.py", "distill/relational.py", "bt/linear.py",
-                   "runs/relational_search.py", "runs/search.py", *_AGENTS, *_ENGINE,
-                   *_TREES, *_ROLLOUT),
+                   "refine/structure.py", "refine/structure_mutations.py", "refine/forest.py",
+                   "distill/relational.py", "bt/linear.py", "runs/relational_search.py",
+                   "runs/search.py", *_AGENTS, *_ENGINE, *_TREES, *_ROLLOUT),
     "returns": ("engine/stages.py", *_AGENTS, "experts/training.py", *_TREES, *_SYNTH,
                 "synth/commands.py", *_ROLLOUT),
     "evolve-select": ("refine/relational_structure.py", "refine/relational.py",
-                      "refine/structure.py", "distill/relational.py", "bt/linear.py",
+                      "refine/structure.py", "refine/structure_mutations.py",
+                      "refine/forest.py", "distill/relational.py", "bt/linear.py",
                       "runs/relational_search.py", *_TREES, *_ROLLOUT),
 }
 

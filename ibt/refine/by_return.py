@@ -145,7 +145,7 @@ class Population(ThresholdSets):
 
 class Batch(Protocol):
     """Trees decided side by side: row ``i`` is decided by member ``members[i]``
-    (:class:`Population` here, trees of different shapes in :mod:`ibt.refine.structure`)."""
+    (:class:`Population` here, trees of different shapes in :mod:`ibt.refine.forest`)."""
 
     def __len__(self) -> int: ...
 
