@@ -3,11 +3,11 @@
 The product side of the engine (:mod:`ibt.engine`): for a user's agent (an SB3 checkpoint,
 discrete or Box, or a ``MODULE:FUNCTION`` callable) it climbs the anytime ladder
 (:func:`ibt.engine.ladder.run_ladder`: distil at increasing leaf limits, axis-aligned
-and relational trees at the same limit, refine the first limit's trees that keep the target,
-then the structure search with restarts below it, by bisection), turns every tree into every
-registered synthesiser's verified BT and recommends the smallest BT that keeps ``keep`` of the
-agent's random-normalised return (or, when none does, the one that keeps most). Every step is
-cached
+and relational trees at the same limit, up to the first limit that keeps the target; the
+structure search with restarts below it, by bisection; then refine that limit's trees that kept
+the target where no smaller limit did), turns every tree into every registered synthesiser's
+verified BT and recommends the smallest BT that keeps ``keep`` of the agent's random-normalised
+return (or, when none does, the one that keeps most). Every step is cached
 (:func:`ibt.cache.store.load_or_compute`, keyed on the agent's digest), so raising the time, the
 budget or the leaf limits reruns only what changed; a deadline, Ctrl-C or SIGTERM ends the
 ladder between (or inside) steps with the best candidate found so far, marked as stopped.
