@@ -119,7 +119,7 @@ def test_front_axes_have_plain_few_ticks():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ibt.report.plots import _plain_log_ticks
+    from ibt.report.figure_style import _plain_log_ticks
 
     for low, high in [(4, 500), (38, 49), (5, 11), (2, 30)]:
         fig, ax = plt.subplots()
