@@ -38,7 +38,7 @@ _ROLLOUT = ("evaluate/rollouts.py", "evaluate/policies.py", "tasks/task.py", "ta
 _TREES = ("refine/tree_arrays.py", "distill/loop.py")
 _ENGINE = ("engine/stages.py", "engine/synthesis.py", "engine/agent.py",  # keys, agents,
            "engine/budgets.py")  # budgets
-_AGENTS = ("experts/expert.py", "experts/callable_agent.py")
+_AGENTS = ("experts/expert.py", "experts/checkpoint.py", "experts/callable_agent.py")
 _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decision_list.py",
           "synth/decision_list_search.py", "synth/decision_list_exact.py",
           "synth/decision_list_factoring.py", "synth/baselines.py", "synth/registry.py",
