@@ -43,7 +43,7 @@ animations: setup ## the GIFs of Behavior Trees in motion, figures/anim/*.gif (a
 reproduce: setup ## recompute everything from scratch: experts, grids, figures (hours; resumable)
 	@mkdir -p build/reproduce && test -f build/reproduce/started || touch build/reproduce/started
 	@echo "Last time on this kind of machine each stage took (an estimate; progress bars follow):"
-	@$(BIN)/python -c "from ibt.report.markdown import Results, timings_markdown; from ibt.paths import DATA_DIR; print(timings_markdown(Results(DATA_DIR), with_record=True))"
+	@$(BIN)/python -c "from ibt.report.stats import Results; from ibt.report.tables import timings_markdown; from ibt.paths import DATA_DIR; print(timings_markdown(Results(DATA_DIR), with_record=True))"
 	$(BIN)/python -m ibt train --refresh-before build/reproduce/started
 	$(BIN)/python -m ibt random-baselines
 	IBT_CACHE_DIR=$(CURDIR)/build/reproduce/cache $(MAKE) figures

@@ -22,16 +22,9 @@ from ibt.bt.json_io import load_json
 from ibt.bt.model import NO_DECISION, Action, BehaviorTree, Condition, Selector, Sequence
 from ibt.evaluate.policies import BTPolicy
 from ibt.evaluate.rollouts import final_seeds, rollout
+from ibt.export.agreement import agreement_states, leaf_regions, threshold_neighbours
 from ibt.export.btcpp import BUILTIN_IDS, action_ids, to_btcpp_xml
-from ibt.export.engine import (
-    EngineTree,
-    agreement_states,
-    compare_rollouts,
-    leaf_regions,
-    load_engine_tree,
-    threshold_neighbours,
-    ticks_per_second,
-)
+from ibt.export.engine import EngineTree, compare_rollouts, load_engine_tree, ticks_per_second
 from ibt.paths import DATA_DIR
 from ibt.tasks.catalogue import get_task
 

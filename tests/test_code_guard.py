@@ -33,8 +33,9 @@ def test_every_cache_kind_names_existing_sources():
 
 def test_growing_the_key_packages_rekeys_entries_written_under_the_installed_versions(
         tmp_path, monkeypatch):
-    from ibt.cache import admin as cache_admin
+    from ibt.cache import migrations as cache_migrations
     from ibt.cache import store as cache
+    from ibt.cache import upkeep as cache_upkeep
 
     calls: list[int] = []
 
@@ -46,12 +47,13 @@ def test_growing_the_key_packages_rekeys_entries_written_under_the_installed_ver
     assert "pyeda" not in cache.KEY_PACKAGES and "pyeda" in cache.TRACKED_PACKAGES
     grown = (*cache.KEY_PACKAGES, "pyeda")  # as numpy and torch joined them
     monkeypatch.setattr(cache, "KEY_PACKAGES", grown)
-    monkeypatch.setattr(cache_admin, "KEY_PACKAGES", grown)
+    monkeypatch.setattr(cache_upkeep, "KEY_PACKAGES", grown)
+    monkeypatch.setattr(cache_migrations, "KEY_PACKAGES", grown)
     # Expect: the old entry is now stale (its key lacks the new package) ...
-    assert [e.status for e in cache_admin.entries(tmp_path)] == ["stale"]
-    report = cache_admin.migrate(tmp_path)
+    assert [e.status for e in cache_upkeep.entries(tmp_path)] == ["stale"]
+    report = cache_migrations.migrate(tmp_path)
     # ... and after the migration it is current and a lookup hits it without computing
-    assert [e.status for e in cache_admin.entries(tmp_path)] == ["current"], report
+    assert [e.status for e in cache_upkeep.entries(tmp_path)] == ["current"], report
     assert cache.load_or_compute("tree-eval", {"a": 1}, compute, cache_dir=tmp_path,
                                  codec="json") == {"x": 1}
     assert calls == [1]

@@ -141,7 +141,8 @@ def test_committed_discrete_bts_have_no_commands_key():
 def test_engine_runs_commands_as_script_nodes_with_nothing_registered(lander_tree):
     """Decisions and command values equal on states in every region and on both sides of
     every threshold; engine rollouts return what the Python BT returns."""
-    from ibt.export.engine import EnginePolicy, EngineTree, agreement_states
+    from ibt.export.agreement import agreement_states
+    from ibt.export.engine import EnginePolicy, EngineTree
 
     ct = command_tree(lander_tree, LANDER, 4)
     bt = with_commands(get_synthesiser("decision-list")(ct.tree, ct.task).bt, ct.commands)

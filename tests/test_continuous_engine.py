@@ -69,7 +69,8 @@ def _committed() -> list[tuple[str, object]]:
 def test_every_committed_continuous_bt_loads_in_the_stock_engine_and_agrees():
     """Nothing registered; decisions and command values equal on states inside every region
     and on both sides of every threshold; its committed XML is what the exporter writes."""
-    from ibt.export.engine import EngineTree, agreement_states
+    from ibt.export.agreement import agreement_states
+    from ibt.export.engine import EngineTree
     from ibt.paths import DATA_DIR
     from ibt.synth.commands import bt_actions
 

@@ -218,12 +218,12 @@ def test_excluded_experts_are_marked_and_error_bars_named():
 
 
 def test_unknown_and_new_methods_get_colours():
-    from ibt.report import plots
+    from ibt.report import figure_style, plots
 
     frame = pd.DataFrame({"task": ["T"] * 3, "expert": ["dqn"] * 3,
                           "method": ["decision-list", "imitation-bt+", "brand-new"],
                           "nodes": [5, 7, 9]})
-    assert plots.methods_in(frame) == ["imitation-bt+", "decision-list", "brand-new"]
+    assert figure_style.methods_in(frame) == ["imitation-bt+", "decision-list", "brand-new"]
     fig = plots.node_counts(frame)
     labels = [t.get_text() for t in fig.legends[0].get_texts()]
     assert labels == ["Imitation-BT+", "decision list", "brand-new"]
@@ -231,9 +231,9 @@ def test_unknown_and_new_methods_get_colours():
 
 
 def test_saved_figures_are_stamped(tmp_path):
-    from ibt.report import plots
+    from ibt.report import plots, task_figures
 
-    fig = plots.frozenlake_map(np.full((64, 64, 3), 200, np.uint8), [0, 4, 8])
+    fig = task_figures.frozenlake_map(np.full((64, 64, 3), 200, np.uint8), [0, 4, 8])
     png = plots.save_figure(fig, tmp_path / "lake", formats=("png",))[0]
     reading = measure(png)
     assert reading.kind == "plot" and reading.font_pt == 10 and reading.problems() == []
@@ -246,7 +246,7 @@ def test_status_labels_of_neighbouring_tasks_never_overlap(figure):
 
     # Expect: eight tasks (the catalogue's count), every other expert marked; no two labels'
     # boxes intersect, and each stays inside its task's band
-    from ibt.report import plots
+    from ibt.report import figure_style, plots
 
     statuses = {k: ("excluded", "constant-action")[k % 2] for k in range(8)}
     frame = _summary([50.0] * 8, [40.0] * 8, [60.0] * 8, statuses)
@@ -255,7 +255,7 @@ def test_status_labels_of_neighbouring_tasks_never_overlap(figure):
     fig = getattr(plots, figure)(frame)
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
-    notes = set(plots.STATUS_NOTE.values())
+    notes = set(figure_style.STATUS_NOTE.values())
     boxes = [t.get_window_extent(renderer) for t in fig.findobj(matplotlib.text.Text)
              if t.get_text() in notes]
     assert len(boxes) == 8
@@ -268,7 +268,7 @@ def test_status_labels_of_neighbouring_tasks_never_overlap(figure):
 
 
 def test_every_front_panel_names_its_expert():
-    from ibt.report import plots
+    from ibt.report import front_figures
 
     means = pd.DataFrame({"task": ["A", "A", "B"], "expert": ["dqn", "dqn", "ppo"],
                           "method": ["imitation-bt"] * 3, "bt_nodes": [5, 9, 7],
@@ -276,7 +276,7 @@ def test_every_front_panel_names_its_expert():
                           "high": [92, 96, 85]})
     points = means[["task", "method", "bt_nodes", "retention_norm"]]
     anchors = pd.DataFrame(columns=["source", "task", "tree_nodes", "retention_norm"])
-    fig = plots.size_retention_front(points, means, anchors)
+    fig = front_figures.size_retention_front(points, means, anchors)
     titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
     assert titles == ["A, DQN expert", "B, PPO expert"]
     matplotlib.pyplot.close(fig)

@@ -93,7 +93,7 @@ def test_smoke_refinement_budget_is_tiny_and_keeps_the_task_stages():
 
 
 def test_report_part_renders_targets_and_the_front(tmp_path):
-    from ibt.report import markdown
+    from ibt.report import beyond
     from ibt.report.stats import Results
 
     results = tmp_path / "results"
@@ -104,12 +104,12 @@ def test_report_part_renders_targets_and_the_front(tmp_path):
     table.to_csv(results / "front.csv", index=False)
     front.target_table(table, {"MountainCar-v0": 4}).to_csv(results / "front_targets.csv",
                                                             index=False)
-    text = markdown._front(Results(tmp_path))
+    text = beyond._front(Results(tmp_path))
     assert "| MountainCar-v0 | dqn | >= 98 % with <= 9 nodes | 4 | 3 | 98.2 (97.0) | 9.0 | met |" \
         in text
     assert "| MountainCar-v0 | imitation-bt+ | 9: 98.2 | 98.2 (9) |" in text
     assert "| LunarLander-v3 | dqn |" in text and "not measured" in text
-    assert markdown._front(Results(tmp_path / "nothing")) is None
+    assert beyond._front(Results(tmp_path / "nothing")) is None
 
 
 def test_front_axes_have_plain_few_ticks():
@@ -119,7 +119,7 @@ def test_front_axes_have_plain_few_ticks():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ibt.report.plots import _plain_log_ticks
+    from ibt.report.figure_style import _plain_log_ticks
 
     for low, high in [(4, 500), (38, 49), (5, 11), (2, 30)]:
         fig, ax = plt.subplots()

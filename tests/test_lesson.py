@@ -16,7 +16,7 @@ from ibt.paths import DATA_DIR
 from ibt.synth.imitation import imitation_bt
 from ibt.synth.rules import leaf_paths
 from ibt.tasks.catalogue import Task, get_task
-from ibt.views import lesson
+from ibt.views import lesson, lesson_edits, lesson_synthesis
 from tests.conftest import fit_tree
 
 DELIVERY_BT = DATA_DIR / "trees" / "PackageDelivery-v0" / "dqn" / "imitation-bt.json"
@@ -78,7 +78,7 @@ SYNTHETIC = Task("Synthetic", "none", ("a", "b", "c", "d"), ("u", "v", "w"), (-1
 @pytest.mark.parametrize("leaves", [4, 12, 24])
 def test_synthesis_stages_add_up(leaves):
     tree, _ = fit_tree(leaves=leaves)
-    chain = lesson.synthesis_stages(tree, SYNTHETIC)
+    chain = lesson_synthesis.synthesis_stages(tree, SYNTHETIC)
     stages = chain.stages.set_index("stage")
     paths = leaf_paths(tree)
     assert stages.loc["1. decision tree", "nodes"] == tree.tree_.node_count
@@ -171,10 +171,10 @@ def test_schedule_view_under_smoke(tmp_path):
 # ---------------------------------------------------------------------- 5. editing a BT
 @pytest.mark.parametrize("value", ["depot", "zone_a", "zone_b", "charger"])
 def test_categorical_tests_match_their_values(delivery_bt, value):
-    states = lesson.all_states("PackageDelivery-v0")
+    states = lesson_edits.all_states("PackageDelivery-v0")
     code = ("depot", "zone_a", "zone_b", "charger").index(value)
     for op, expected in (("==", states[:, 0] == code), ("!=", states[:, 0] != code)):
-        test = lesson.feature_test(delivery_bt, "location", op, value)
+        test = lesson_edits.feature_test(delivery_bt, "location", op, value)
         probe = BehaviorTree(Selector((Sequence((test, Action(1))), Action(0))),
                              delivery_bt.feature_names, delivery_bt.action_names)
         assert (probe.decide(states) == 1).tolist() == expected.tolist()
@@ -182,54 +182,56 @@ def test_categorical_tests_match_their_values(delivery_bt, value):
 
 def test_feature_test_rejects_bad_input(delivery_bt):
     with pytest.raises(ValueError, match="unknown feature"):
-        lesson.feature_test(delivery_bt, "speed", "<=", 3)
+        lesson_edits.feature_test(delivery_bt, "speed", "<=", 3)
     with pytest.raises(ValueError, match="one of the feature's values"):
-        lesson.feature_test(delivery_bt, "location", "==", "moon")
+        lesson_edits.feature_test(delivery_bt, "location", "==", "moon")
     with pytest.raises(ValueError, match="unknown action"):
-        lesson.guard(delivery_bt, [["battery", "<=", 3]], "fly")
+        lesson_edits.guard(delivery_bt, [["battery", "<=", 3]], "fly")
 
 
 def test_add_guard_first_and_last(delivery_bt):
-    states = lesson.all_states("PackageDelivery-v0")
+    states = lesson_edits.all_states("PackageDelivery-v0")
     low = states[:, 1] <= 2
-    rule = lesson.guard(delivery_bt, [["battery", "<=", 2]], "wait")
-    first = lesson.add_guard(delivery_bt, rule, position=0)
+    rule = lesson_edits.guard(delivery_bt, [["battery", "<=", 2]], "wait")
+    first = lesson_edits.add_guard(delivery_bt, rule, position=0)
     assert first.node_count == delivery_bt.node_count + 3
     assert (first.decide(states)[low] == delivery_bt.action_names.index("wait")).all()
     assert (first.decide(states)[~low] == delivery_bt.decide(states)[~low]).all()
-    diff = lesson.decision_diff(delivery_bt, first, states)
+    diff = lesson_edits.decision_diff(delivery_bt, first, states)
     assert len(diff) == int((delivery_bt.decide(states)[low] != 7).sum())
     assert set(diff.after) == {"wait"} and (diff.battery <= 2).all()
     # just before the default: acts only where no rule fired (the default's own region)
-    last = lesson.add_guard(delivery_bt, rule, position=-1)
+    last = lesson_edits.add_guard(delivery_bt, rule, position=-1)
     assert last.root.children[-2:] == (rule, delivery_bt.root.children[-1])
     default = delivery_bt.root.children[-1].action
     changed = last.decide(states) != delivery_bt.decide(states)
     assert (delivery_bt.decide(states)[changed] == default).all()
-    assert lesson.decision_diff(delivery_bt, delivery_bt, states).empty
+    assert lesson_edits.decision_diff(delivery_bt, delivery_bt, states).empty
 
 
 def test_all_states():
-    states = lesson.all_states("PackageDelivery-v0")
+    states = lesson_edits.all_states("PackageDelivery-v0")
     assert states.shape == (4 * 11 * 3 * 3 * 3, 5) and len(np.unique(states, axis=0)) == 1188
     with pytest.raises(ValueError, match="continuous"):
-        lesson.all_states("CartPole-v1")
+        lesson_edits.all_states("CartPole-v1")
 
 
 def test_evaluate_variants_batch_size_does_not_change_episodes(delivery_bt):
     task = get_task("PackageDelivery-v0")
     policy = ibt.BTPolicy(task, delivery_bt)
     seeds = final_seeds(12)
-    table = lesson.evaluate_variants(task, {"bt": policy}, {"drain 2": {"drain_scale": 2}}, seeds)
+    table = lesson_edits.evaluate_variants(task, {"bt": policy}, {"drain 2": {"drain_scale": 2}},
+                                           seeds)
     reference = rollout(task, policy.act, seeds, n_envs=3, env_kwargs={"drain_scale": 2})
     assert table.loc[0, "mean_return"] == pytest.approx(reference.mean)
     assert table.loc[0, "environment"] == "drain 2" and "battery_failure_rate" in table
 
 
 def test_guard_sweep_rows(delivery_bt):
-    sweep = lesson.guard_sweep(delivery_bt, [["battery", "<=", 4], ["location", "!=", "charger"]],
-                               "go_charger", [2, 4], "PackageDelivery-v0",
-                               {"d1": {}, "d2": {"drain_scale": 2}}, final_seeds(4))
+    sweep = lesson_edits.guard_sweep(delivery_bt,
+                                     [["battery", "<=", 4], ["location", "!=", "charger"]],
+                                     "go_charger", [2, 4], "PackageDelivery-v0",
+                                     {"d1": {}, "d2": {"drain_scale": 2}}, final_seeds(4))
     assert len(sweep) == 4 and set(sweep["battery <="]) == {2, 4}
     changed = sweep.groupby("battery <=")["states changed"].first()
     assert changed[2] < changed[4]  # a looser guard overrides more states

@@ -72,7 +72,7 @@ def test_front_has_a_panel_per_task_and_expert():
     import pandas as pd
 
     matplotlib.use("Agg")
-    from ibt.report import plots
+    from ibt.report import front_figures
 
     means = pd.DataFrame({"task": ["A", "B", "B"], "expert": ["dqn", "dqn", "ppo"],
                           "method": ["imitation-bt+"] * 3, "bt_nodes": [5, 9, 7],
@@ -81,7 +81,7 @@ def test_front_has_a_panel_per_task_and_expert():
     points = means[["task", "expert", "method", "bt_nodes", "retention_norm"]]
     anchors = pd.DataFrame({"source": ["S"] * 2, "task": ["B"] * 2, "expert": ["dqn", "ppo"],
                             "tree_nodes": [20, 20], "retention_norm": [80.0, 40.0]})
-    fig = plots.size_retention_front(points, means, anchors, notes="X*: the variants.")
+    fig = front_figures.size_retention_front(points, means, anchors, notes="X*: the variants.")
     panels = [ax for ax in fig.axes if ax.get_title()]
     assert [ax.get_title() for ax in panels] == ["A, DQN expert", "B, DQN expert",
                                                  "B, PPO expert"]

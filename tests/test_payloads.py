@@ -21,8 +21,10 @@ import ibt.distill
 import ibt.refine
 from ibt.bt.model import Action, BehaviorTree, Condition, Fallback, Inverter, Selector, Sequence
 from ibt.cache import admin as cache_admin
+from ibt.cache import migrations as cache_migrations
 from ibt.cache import payloads
 from ibt.cache import store as cache
+from ibt.cache import upkeep as cache_upkeep
 from ibt.cache.payloads import CODECS, PayloadError, difference
 from ibt.cache.store import CacheWarning, cache_key, load_or_compute
 from ibt.distill.loop import Distillation, tree_signature
@@ -218,7 +220,7 @@ def test_a_damaged_entry_is_recomputed_with_one_warning(tmp_path, demo, damage, 
         manifest_file.write_text(json.dumps(manifest))
     elif damage == "empty-manifest":
         manifest_file.write_text("")
-        assert cache_admin.classify(entry).status == "incomplete"
+        assert cache_upkeep.classify(entry).status == "incomplete"
     elif damage == "no-payload":
         payload.unlink()
     elif damage == "other-params":  # a whole entry copied under another key
@@ -394,38 +396,38 @@ def test_migrate_plain_converts_pickles_exactly_and_keeps_keys(tmp_path):
     (json_folder / "payload.json").write_text('{"mean_return": 1.5}')
     (json_folder / "manifest.json").write_text(cache.manifest_text(
         cache.entry_manifest("bt-eval", {"bt": "x"}, "json")))
-    assert {e.status for e in cache_admin.entries(tmp_path)} == {"unmigrated"}
+    assert {e.status for e in cache_upkeep.entries(tmp_path)} == {"unmigrated"}
     before = {k: json.loads((f / "manifest.json").read_text()) for k, f in folders.items()}
 
     assert cache_admin.main(["migrate-plain", "--cache-dir", str(tmp_path),
                              "--trust-pickles"]) == 0
     assert list(tmp_path.rglob("*.joblib")) == []
-    assert {e.status for e in cache_admin.entries(tmp_path)} == {"current"}
-    assert cache_admin.verify(tmp_path) == []
+    assert {e.status for e in cache_upkeep.entries(tmp_path)} == {"current"}
+    assert cache_upkeep.verify(tmp_path) == []
     for kind, folder in folders.items():
         manifest = json.loads((folder / "manifest.json").read_text())
-        assert manifest.pop("codec") == cache_admin.PLAIN_CODECS[kind]
+        assert manifest.pop("codec") == cache_migrations.PLAIN_CODECS[kind]
         assert len(manifest.pop("payload_sha256")) == 64
         assert manifest == {k: v for k, v in before[kind].items() if k != "codec"}
         params, value = cases[kind]
         back = load_or_compute(kind, params, lambda: pytest.fail("recomputed"),
-                               cache_dir=tmp_path, codec=cache_admin.PLAIN_CODECS[kind])
+                               cache_dir=tmp_path, codec=cache_migrations.PLAIN_CODECS[kind])
         assert difference(value, back) is None
     assert load_or_compute("bt-eval", {"bt": "x"}, lambda: pytest.fail("recomputed"),
                            cache_dir=tmp_path, codec="json") == {"mean_return": 1.5}
     # Expect: a re-run changes nothing
-    report = cache_admin.migrate_plain(tmp_path)
+    report = cache_migrations.migrate_plain(tmp_path)
     assert not report.converted and not report.digested and sum(report.verified.values()) == 4
 
 
 def test_an_interrupted_migration_is_finished_by_a_rerun(tmp_path):
     with _old_module_paths():
         folder = _legacy_pickle_entry(tmp_path, "distill", {"seed": 5}, _run(5))
-    _, data = cache_admin.convert_pickle(folder, "distill")
+    _, data = cache_migrations.convert_pickle(folder, "distill")
     (folder / "payload.npz").write_bytes(data)  # killed after writing the payload
-    assert cache_admin.migrate_plain(tmp_path).converted == {"distill": 1}
+    assert cache_migrations.migrate_plain(tmp_path).converted == {"distill": 1}
     assert sorted(p.name for p in folder.iterdir()) == ["manifest.json", "payload.npz"]
-    assert cache_admin.verify(tmp_path) == []
+    assert cache_upkeep.verify(tmp_path) == []
 
 
 def test_migrate_plain_refuses_pickles_without_trust(tmp_path, capsys):

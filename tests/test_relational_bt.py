@@ -371,7 +371,8 @@ def test_escaping_of_odd_feature_names_in_relational_labels():
 
 @pytest.mark.parametrize("method", ["decision-list", "bt-espresso"])
 def test_the_engine_agrees_on_regions_both_sides_of_every_test_and_random_states(method):
-    from ibt.export.engine import agreement_states, load_engine_tree
+    from ibt.export.agreement import agreement_states
+    from ibt.export.engine import load_engine_tree
 
     tree = fit_relational(seed=3, leaves=8)
     bt = SYNTHESISERS[method](tree, LINE).bt

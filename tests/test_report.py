@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt.report import claims, markdown, stats
+from ibt.report import beyond, claims, deviations, markdown, stats, tables
 from ibt.report.claims import NOT_MEASURED, NOT_REPRODUCED, PARTLY, REPRODUCED
 
 SIMPLE = claims.SIMPLE_TASKS
@@ -316,11 +316,11 @@ def test_package_delivery_skips_experts_that_do_not_count(tmp_path):
 # --- the report -------------------------------------------------------------------------------
 
 def test_cells_name_their_interval():
-    assert markdown.format_cell([97.25]) == "97.2 (1 seed)"
-    assert markdown.format_cell([97.0, 99.0, 98.0]) == "98.0 (97.0 to 99.0, 3 seeds)"
-    five = markdown.format_cell([90.0, 95.0, 100.0, 96.0, 94.0])
+    assert tables.format_cell([97.25]) == "97.2 (1 seed)"
+    assert tables.format_cell([97.0, 99.0, 98.0]) == "98.0 (97.0 to 99.0, 3 seeds)"
+    five = tables.format_cell([90.0, 95.0, 100.0, 96.0, 94.0])
     assert five.startswith("95.0 [") and "seeds" not in five
-    assert markdown.format_cell([]) == ""
+    assert tables.format_cell([]) == ""
 
 
 def test_report_marks_experts_that_do_not_count(tmp_path):
@@ -340,7 +340,7 @@ def test_report_marks_experts_that_do_not_count(tmp_path):
 
 def test_beyond_the_paper_reads_its_tables(tmp_path):
     res = stats.Results(tmp_path)
-    assert markdown.beyond_markdown(res).count("_not measured") == len(markdown.BEYOND)
+    assert beyond.beyond_markdown(res).count("_not measured") == len(beyond.BEYOND)
     _write(tmp_path, "synthesis", pd.DataFrame([
         {"task": "CartPole-v1", "expert": "dqn", "method": m, "seed": 0, "nodes": n}
         for m, n in [("imitation-bt", 20), ("decision-list", 10)]]))
@@ -348,7 +348,7 @@ def test_beyond_the_paper_reads_its_tables(tmp_path):
                                             "method": ["imitation-bt+"], "seed": [0],
                                             "max_leaf_nodes": [3], "bt_nodes": [9],
                                             "retention_norm": [97.0]}))
-    text = markdown.beyond_markdown(res)
+    text = beyond.beyond_markdown(res)
     assert text.count("_not measured") == 3  # Imitation-BT+S's and +SR's tables are not there
     assert "front_protocol.csv" in text and "structure_ablation.csv" in text
     assert "relational_search.csv" in text
@@ -356,7 +356,7 @@ def test_beyond_the_paper_reads_its_tables(tmp_path):
         {"task": "MountainCar-v0", "expert": "dqn", "max_leaf_nodes": 3, "seed": 0,
          "expert_help": helped, "bt_nodes": 6, "mean_return": r}
         for helped, r in [(True, -110.0), (False, -115.0)]]))
-    text = markdown.beyond_markdown(res)
+    text = beyond.beyond_markdown(res)
     assert "structure_ablation.csv" not in text
     assert "| MountainCar-v0 | dqn | 3 | 1 | -110.0 | 6.0 | -115.0 | 6.0 | +5.0 |" in text
     assert "| CartPole-v1 | dqn | 20.0 | 10.0 | 0.50 |" in text
@@ -381,7 +381,7 @@ def _searched(nodes: list[int], returns: list[float]) -> pd.DataFrame:
 ])
 def test_relational_search_verdicts_read_the_bar_in_the_table(tmp_path, nodes, returns, verdict):
     _write(tmp_path, "relational_search", _searched(nodes, returns))
-    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    text = beyond.relational_search_markdown(stats.Results(tmp_path))
     row = next(line for line in text.splitlines() if line.startswith("| LunarLander-v3"))
     assert row.endswith(f"| {verdict} |")
     assert f"| budget trees | {len(nodes)} | {np.mean(nodes):.1f} ({max(nodes)}) |" in row
@@ -394,7 +394,7 @@ def test_relational_search_against_an_anchor_needs_more_than_its_mean_and_its_sh
                                     ([245.0] * 3, 0.85, "missed")]:
         _write(tmp_path, "relational_search", _searched([40] * 3, returns).assign(
             share_at_threshold=share, **anchor))
-        text = markdown.relational_search_markdown(stats.Results(tmp_path))
+        text = beyond.relational_search_markdown(stats.Results(tmp_path))
         row = next(line for line in text.splitlines() if line.startswith("| LunarLander-v3"))
         assert row.endswith(f"| {verdict} |") and "(MENS-DT-RL)" in row
 
@@ -405,7 +405,7 @@ def test_deviations_name_the_experts_networks_and_steps(tmp_path):
     manifest = pd.concat([manifest, manifest.assign(algo="ppo", net_arch="256x256",
                                                     timesteps=20_000)])
     manifest.to_csv(tmp_path / "experts" / "manifest.csv", index=False)
-    text = markdown.deviations_markdown(stats.Results(tmp_path))
+    text = deviations.deviations_markdown(stats.Results(tmp_path))
     assert "1 use 256x256 (CartPole PPO)" in text
     assert "1,000 to 20,000 steps" in text and "2,000,000" in text
     assert "highway-fast-v0 (10)" in text  # the iterations, from the task catalogue
@@ -433,10 +433,10 @@ def test_timings_read_the_make_figures_record(tmp_path):
     (tmp_path / "results" / "make_figures.json").write_text(
         json.dumps({"seconds": 123.4, "machine": "x86_64, 2 cores", "date": "2026-11-22"}))
     # the README and the paper name the record, never its time (it changes on every run) ...
-    written = markdown.timings_markdown(stats.Results(tmp_path))
+    written = tables.timings_markdown(stats.Results(tmp_path))
     assert "123" not in written and "data/results/make_figures.json" in written
     # ... `make reproduce` prints the time itself
-    assert "123 s" in markdown.timings_markdown(stats.Results(tmp_path), with_record=True)
+    assert "123 s" in tables.timings_markdown(stats.Results(tmp_path), with_record=True)
 
 
 def test_node_claim_without_a_complete_counted_cell_is_not_measured(tmp_path):
@@ -464,7 +464,7 @@ def test_relational_search_keeps_runs_of_different_settings_apart(tmp_path):
     larger = _searched([21, 25, 23], [150.0, 155.0, 160.0]).assign(
         search_budget=40_000, candidate_weights="scaled to spreads")
     _write(tmp_path, "relational_search", pd.concat([base, larger], ignore_index=True))
-    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    text = beyond.relational_search_markdown(stats.Results(tmp_path))
     rows = [line for line in text.splitlines() if line.startswith("| LunarLander-v3")]
     assert len(rows) == 2
     assert "| budget trees; 24,000 search episodes | 3 |" in rows[0]
@@ -479,7 +479,7 @@ def test_relational_search_keeps_leaf_rules_apart(tmp_path):
     vote = _searched([21, 25, 23], [210.0, 195.0, 205.0]).assign(leaf_rule="vote")
     score = _searched([21, 25, 23], [150.0, 155.0, 160.0]).assign(leaf_rule="score")
     _write(tmp_path, "relational_search", pd.concat([vote, score], ignore_index=True))
-    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    text = beyond.relational_search_markdown(stats.Results(tmp_path))
     rows = [line for line in text.splitlines() if line.startswith("| LunarLander-v3")]
     assert len(rows) == 2 and "leaf actions" not in rows[0]
     assert "| budget trees; leaf actions by the expert's mean scores | 3 |" in rows[1]
@@ -491,7 +491,7 @@ def test_relational_search_names_a_longer_held_out_choice(tmp_path):
     task = _searched([21, 25, 23], [210.0, 195.0, 205.0]).assign(selection_episodes=None)
     longer = _searched([21, 25, 23], [215.0, 200.0, 205.0]).assign(selection_episodes=500)
     _write(tmp_path, "relational_search", pd.concat([task, longer], ignore_index=True))
-    text = markdown.relational_search_markdown(stats.Results(tmp_path))
+    text = beyond.relational_search_markdown(stats.Results(tmp_path))
     rows = [line for line in text.splitlines() if line.startswith("| LunarLander-v3")]
     assert len(rows) == 2 and "held-out" not in rows[0]
     assert "| budget trees; chosen on 500 held-out episodes | 3 |" in rows[1]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from ibt.report.markdown import structure_markdown
+from ibt.report.beyond import structure_markdown
 from ibt.report.stats import Results
 from ibt.runs.front import bar_of
 

@@ -197,7 +197,7 @@ def test_schedule_explorer_static_fallback(batch_env):
 
 # ------------------------------------------------------------------ the lesson's figures
 def test_diff_figure_counts_every_cell():
-    from ibt.views.lesson import add_guard, all_states, decision_diff, guard
+    from ibt.views.lesson_edits import add_guard, all_states, decision_diff, guard
 
     bt = load_json(DATA_DIR / "trees" / "PackageDelivery-v0" / "dqn" / "imitation-bt.json")
     edited = add_guard(bt, guard(bt, [["battery", "<=", 4]], "go_charger"))

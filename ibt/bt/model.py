@@ -17,7 +17,8 @@ occurs and a tick's decision is the first action ticked. Comparisons are made in
 on observations cast to float32 first, which is exactly how scikit-learn's trees decide; this is
 what makes a synthesised BT decide *exactly* as its source tree.
 
-This module holds the nodes, node counting and the JSON format of ``data/trees/``; the three
+This module holds the nodes, node counting and the tree; the JSON format of ``data/trees/``
+is in :mod:`ibt.bt.document` (``BehaviorTree.to_dict`` and ``from_dict`` call it), the three
 executors (``tick``, ``decide_batch``, ``to_py_trees``) are in :mod:`ibt.bt.executors`, and the
 proof that every state reaches an action in :mod:`ibt.bt.coverage`.
 """
@@ -306,18 +307,11 @@ class BehaviorTree:
         return relational_tests(self.root)
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON document of ``data/trees/`` (see :func:`from_dict`)."""
-        extra = ({"value_labels": {self.feature_names[f]: list(v) for f, v in self.value_labels}}
-                 if self.value_labels else {})
-        return {
-            "format": "ibt-behavior-tree/1",
-            "feature_names": list(self.feature_names),
-            "action_names": list(self.action_names),
-            "tick_rule": TICK_RULE + (RELATIONAL_TICK_RULE if self.relational_count else ""),
-            **extra,
-            **({"commands": self.commands.to_dict()} if self.commands is not None else {}),
-            "root": node_to_dict(self.root),
-        }
+        """The JSON document of ``data/trees/`` (see :func:`from_dict`; the format is
+        :mod:`ibt.bt.document`'s)."""
+        from ibt.bt.document import tree_to_dict
+
+        return tree_to_dict(self)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1)
@@ -327,46 +321,16 @@ class BehaviorTree:
         """Read a document of :meth:`to_dict`, strictly: ``ValueError`` names the first problem
         (missing or unknown keys, a fractional index, a non-finite threshold, an index out of
         range, a state that reaches no action; see :meth:`validate`)."""
-        if not isinstance(doc, dict):
-            raise ValueError(f"a behavior-tree document is a JSON object, got "
-                             f"{type(doc).__name__}")
-        missing = [key for key in ("feature_names", "action_names", "root") if key not in doc]
-        if missing:
-            raise ValueError(f"behavior-tree JSON lacks the key {missing[0]!r:.60}; expected "
-                             "feature_names, action_names and root")
-        unknown = sorted(set(doc) - DOCUMENT_KEYS)
-        if unknown:
-            raise ValueError(f"unknown key {unknown[0]!r:.60} in a behavior-tree document; "
-                             f"expected {', '.join(sorted(DOCUMENT_KEYS))}")
-        if doc.get("format", FORMAT) != FORMAT:
-            raise ValueError(f"format {doc['format']!r:.60} is not {FORMAT!r}, the one this "
-                             "version reads")
-        if doc.get("tick_rule", TICK_RULE) not in (TICK_RULE, TICK_RULE + RELATIONAL_TICK_RULE):
-            raise ValueError("its tick_rule is not the rule this version ticks by (a BT "
-                             "written for other semantics would not decide as its author meant);"
-                             " remove the key or write the BT with this version")
-        names = _names(doc["feature_names"], "feature_names")
-        labels_doc = doc.get("value_labels", {})
-        if not isinstance(labels_doc, dict):
-            raise ValueError("value_labels must map feature names to lists of labels")
-        labels = []
-        for feature, values in labels_doc.items():
-            if feature not in names:
-                raise ValueError(f"value_labels names the feature {feature!r:.60}, which is not in "
-                                 "feature_names")
-            labels.append((names.index(feature), _names(values, f"value_labels[{feature!r:.60}]")))
-        action_names = _names(doc["action_names"], "action_names")
-        commands = (Commands.from_dict(doc["commands"], len(action_names))
-                    if "commands" in doc else None)
-        tree = cls(root=node_from_dict(doc["root"]), feature_names=names,
-                   action_names=action_names, value_labels=tuple(labels), commands=commands)
-        tree.validate()
-        return tree
+        from ibt.bt.document import tree_from_dict
+
+        return tree_from_dict(cls, doc)
 
     @classmethod
     def from_json(cls, text: str | bytes) -> BehaviorTree:
         """Read a BT document from strict JSON (UTF-8, no duplicate keys: a key given twice
         would silently mean its last value): ``ValueError`` names the first problem."""
+        from ibt.bt.document import strict_json
+
         return cls.from_dict(strict_json(text))
 
     def validate(self) -> None:
@@ -401,43 +365,6 @@ class BehaviorTree:
                        f"{where})")
             raise ValueError(f"{problem}; end the root Selector with an unguarded default "
                              "action, or make the guards cover every state")
-
-
-FORMAT = "ibt-behavior-tree/1"
-TICK_RULE = ("condition succeeds iff float64(float32(obs[feature])) op threshold; an action "
-             "succeeds and is the decision; selector/fallback succeed at the first success; "
-             "sequence fails at the first failure; inverter flips")
-# appended only for a BT with relational conditions (axis-aligned documents stay as they were)
-RELATIONAL_TICK_RULE = ("; a condition with a form {features: [i, j], weights: [w1, w2]} "
-                        "succeeds iff (w1 * x[i]) + (w2 * x[j]) op threshold, computed in "
-                        "float64 left to right with x = float64(float32(obs))")
-DOCUMENT_KEYS = frozenset({"format", "feature_names", "action_names", "tick_rule",
-                           "value_labels", "commands", "root"})
-
-
-def no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """``json.loads``'s ``object_pairs_hook`` that refuses a key given twice (JSON keeps the
-    last silently: a file would not read as it looks)."""
-    doc: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in doc:
-            raise ValueError(f"duplicate key {key!r:.60}")
-        doc[key] = value
-    return doc
-
-
-def strict_json(text: str | bytes) -> Any:
-    """The JSON value of ``text``; ``ValueError`` if it is not UTF-8, not JSON, has a duplicate
-    key or is nested too deeply for the parser (NaN literals are read: the reader of the value
-    says which field must be finite)."""
-    try:
-        if isinstance(text, bytes):
-            text = text.decode("utf-8")
-        return json.loads(text, object_pairs_hook=no_duplicate_keys)
-    except RecursionError:
-        raise ValueError("nested too deeply to be a behavior tree") from None
-    except ValueError as err:  # JSONDecodeError, UnicodeDecodeError, duplicate keys
-        raise ValueError(f"not strict JSON ({' '.join(str(err).split())})") from None
 
 
 def _names(values: Any, what: str) -> tuple[str, ...]:
@@ -482,27 +409,6 @@ def iterate(node: Node) -> Iterator[Node]:
         yield from iterate(child)
 
 
-# ----------------------------------------------------------------------------------- JSON
-def node_to_dict(node: Node) -> dict[str, Any]:
-    if isinstance(node, Condition) and node.form is not None:
-        return {"type": "condition", "form": node.form.to_json(), "op": node.op,
-                "threshold": float(node.threshold)}
-    if isinstance(node, Condition):
-        return {"type": "condition", "feature": node.feature, "op": node.op,
-                "threshold": float(node.threshold)}
-    if isinstance(node, Action):
-        return {"type": "action", "action": node.action}
-    return {"type": node.type, "children": [node_to_dict(c) for c in node.children]}
-
-
-_NODE_KEYS = {"condition": {"type", "feature", "op", "threshold"}, "action": {"type", "action"},
-              **{kind: {"type", "children"}
-                 for kind in ("selector", "fallback", "sequence", "inverter")}}
-_RELATIONAL_KEYS = {"type", "form", "op", "threshold"}
-_COMPOSITES: dict[str, type[Selector | Fallback | Sequence]] = {
-    "selector": Selector, "fallback": Fallback, "sequence": Sequence}
-
-
 def check_size(root: Node) -> None:
     """``ValueError`` unless the tree is at most :data:`MAX_DEPTH` deep and has at most
     :data:`MAX_NODES` nodes (checked without recursion, so any object graph is safe)."""
@@ -519,52 +425,6 @@ def check_size(root: Node) -> None:
                              "that contains itself); a BT this large is not one ibt writes")
         stack.extend((child, depth + 1) for child in getattr(node, "children", ()))
 
-
-def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
-    """One node of the JSON format, strictly; errors say where (``root.children[2]``).
-
-    Deeper than :data:`MAX_DEPTH` levels is a ``ValueError`` (not a RecursionError)."""
-    if depth > MAX_DEPTH:
-        raise ValueError(f"{where.split('.children')[0]}: the behavior tree is more than "
-                         f"{MAX_DEPTH} levels deep; a BT this deep is not one ibt writes")
-    if not isinstance(doc, dict):
-        raise ValueError(f"{where}: a node is a JSON object, got {type(doc).__name__}")
-    kind = doc.get("type")
-    if not isinstance(kind, str) or kind not in _NODE_KEYS:
-        raise ValueError(f"{where}: unknown node type {kind!r:.60}; expected one of "
-                         f"{', '.join(NODE_TYPES)}")
-    keys = _NODE_KEYS[kind]
-    if kind == "condition" and "form" in doc:
-        if "feature" in doc:
-            raise ValueError(f"{where}: a condition has either 'feature' (a test of one feature)"
-                             " or 'form' (a relational test), not both")
-        keys = _RELATIONAL_KEYS
-    if set(doc) != keys:
-        problem = (f"lacks {sorted(keys - set(doc))[0]!r:.60}" if keys - set(doc)
-                   else f"has the unknown key {sorted(set(doc) - keys)[0]!r:.60}")
-        raise ValueError(f"{where}: a {kind} node {problem}; its keys are "
-                         f"{', '.join(sorted(keys))}")
-    try:
-        if kind == "condition" and "form" in doc:
-            return Condition.relational(LinearForm.from_json(doc["form"]), doc["op"],
-                                        doc["threshold"])
-        if kind == "condition":
-            return Condition(doc["feature"], doc["op"], doc["threshold"])
-        if kind == "action":
-            return Action(doc["action"])
-    except ValueError as err:
-        raise ValueError(f"{where}: {err}") from None
-    if not isinstance(doc["children"], list):
-        raise ValueError(f"{where}: children must be a list of nodes")
-    children = tuple(node_from_dict(c, f"{where}.children[{i}]", depth + 1)
-                     for i, c in enumerate(doc["children"]))
-    if kind == "inverter":
-        if len(children) != 1:
-            raise ValueError(f"{where}: an inverter has exactly one child, got {len(children)}")
-        return Inverter(children[0])
-    if not children:
-        raise ValueError(f"{where}: a {kind} needs at least one child")
-    return _COMPOSITES[kind](children)
 
 
 def indexed(root: Node) -> list[tuple[Node, tuple[int, ...]]]:

@@ -38,11 +38,11 @@ _ROLLOUT = ("evaluate/rollouts.py", "evaluate/policies.py", "tasks/task.py", "ta
 _TREES = ("refine/tree_arrays.py", "distill/loop.py")
 _ENGINE = ("engine/stages.py", "engine/synthesis.py", "engine/agent.py",  # keys, agents,
            "engine/budgets.py")  # budgets
-_AGENTS = ("experts/expert.py", "experts/callable_agent.py")
+_AGENTS = ("experts/expert.py", "experts/checkpoint.py", "experts/callable_agent.py")
 _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decision_list.py",
           "synth/decision_list_search.py", "synth/decision_list_exact.py",
           "synth/decision_list_factoring.py", "synth/baselines.py", "synth/registry.py",
-          "bt/model.py", "bt/executors.py", "bt/coverage.py")
+          "bt/model.py", "bt/document.py", "bt/executors.py", "bt/coverage.py")
 
 #: The modules (relative to the package) whose code decides each cache kind's results.
 KIND_SOURCES: dict[str, tuple[str, ...]] = {
@@ -50,14 +50,16 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                 *_ENGINE, *_ROLLOUT),
     "expert-eval": (*_AGENTS, "runs/grid.py", *_ENGINE, *_ROLLOUT),
     "tree-eval": ("runs/grid.py", *_ENGINE, *_TREES, *_ROLLOUT),
-    "bt-eval": ("runs/grid.py", *_ENGINE, "bt/model.py", "bt/executors.py", *_ROLLOUT),
+    "bt-eval": ("runs/grid.py", *_ENGINE, "bt/model.py", "bt/document.py", "bt/executors.py",
+                *_ROLLOUT),
     "synthesis": ("runs/grid.py", *_ENGINE, *_TREES, *_SYNTH),
     "refine": ("refine/by_return.py", "runs/front.py", *_ENGINE, *_TREES, *_ROLLOUT),
     "front-bt": ("runs/front.py", *_TREES, *_SYNTH),
     "executors": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
     "evolve": ("refine/structure.py", "refine/structure_mutations.py", "refine/forest.py",
                "runs/search.py", *_AGENTS, *_ENGINE, *_TREES, *_ROLLOUT),
-    "protocol": ("runs/search.py", "bt/model.py", "bt/executors.py", *_ROLLOUT),
+    "protocol": ("runs/search.py", "bt/model.py", "bt/document.py", "bt/executors.py",
+                 *_ROLLOUT),
     "speed": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
     "box-distill": ("distill/continuous.py", "runs/continuous.py", *_AGENTS, *_ENGINE,
                     *_ROLLOUT),

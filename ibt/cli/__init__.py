@@ -1,5 +1,6 @@
 """``python -m ibt``: the command line (:mod:`ibt.cli.main`; checks in :mod:`ibt.cli.checks`,
-subcommands in :mod:`ibt.cli.commands`).
+subcommands in :mod:`ibt.cli.commands` (those that build experts, trees and BTs),
+:mod:`ibt.cli.bt_commands` (those that use them) and :mod:`ibt.cli.pipeline_command`).
 
 :func:`main` first checks that it runs in the project's environment: ``--help`` needs nothing
 beyond the standard library, but every command needs the compute stack, and a Python outside

@@ -40,6 +40,7 @@ from ibt.tasks.settings import ALGOS, BOX_MAX_LEAF_NODES, DEFAULT_MAX_LEAF_NODES
 if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
     pass
 
+from ibt.cli.bt_commands import _evaluate, _export, _run_btcpp
 from ibt.cli.checks import (
     EPISODE_STEPS,
     EPISODES,
@@ -62,21 +63,8 @@ from ibt.cli.checks import (
     _duration,
     _seconds,
 )
-from ibt.cli.commands import (
-    _budget,
-    _convert_tree,
-    _distill,
-    _evaluate,
-    _export,
-    _keep,
-    _leaf_limits,
-    _pipeline,
-    _random,
-    _refine,
-    _run_btcpp,
-    _synthesize,
-    _train,
-)
+from ibt.cli.commands import _convert_tree, _distill, _random, _refine, _synthesize, _train
+from ibt.cli.pipeline_command import _budget, _keep, _leaf_limits, _pipeline
 
 TRUST_HELP = ("read a pickled (.joblib) tree file of earlier versions: it runs the code it "
               "holds, so only for files from a trusted source (better: convert-tree it once)")

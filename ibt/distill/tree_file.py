@@ -32,7 +32,7 @@ import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ibt.bt.model import no_duplicate_keys
+from ibt.bt.document import no_duplicate_keys
 from ibt.distill.tree_codec import (
     PlainDataError,
     check_tree,

@@ -8,17 +8,19 @@ Each function returns plain data (tables, trees, BTs) for one stage of the lesso
   resampled) are the run's: the mixed rollout, the expert's labels, the Q-gap weights, the
   resampled data and the fitted tree, which must equal the cached run's tree of that iteration
   (``matches_run``; a test replays a fresh run iteration by iteration);
-* :func:`synthesis_stages`: the synthesis chain (tree, paths, DNF per action, Espresso, threshold
-  merge, ordering and default, BT) with the rule, literal and node counts at each stage;
+* :func:`ibt.views.lesson_synthesis.synthesis_stages`: the synthesis chain (tree, paths, DNF per
+  action, Espresso, threshold merge, ordering and default, BT) with the rule, literal and node
+  counts at each stage;
 * :func:`visited_states`: the states a policy visits when it drives (distribution shift);
 * :func:`schedule_view`: one (beta schedule, leaf limit) setting of the distillation with its
   tree, BT, node counts and retention, all through the cached functions;
-* :func:`guard`, :func:`add_guard`, :func:`decision_diff`: editing a synthesised BT by hand.
+* :mod:`ibt.views.lesson_edits`: editing a synthesised BT by hand (``guard``, ``add_guard``,
+  ``decision_diff``);
+* the exercises' answers (:func:`answer_iteration`, :func:`answer_defaults`).
 """
 
 from __future__ import annotations
 
-import itertools
 import re
 from collections.abc import Callable
 from collections.abc import Sequence as Seq
@@ -29,8 +31,7 @@ import numpy as np
 import pandas as pd
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.bt.executors import as_features
-from ibt.bt.model import Action, BehaviorTree, Condition, Fallback, Node, Selector, Sequence
+from ibt.bt.model import BehaviorTree
 from ibt.distill import schedules
 from ibt.distill.loop import DistillConfig
 from ibt.evaluate.policies import CompiledTree
@@ -38,8 +39,6 @@ from ibt.evaluate.rollouts import TRAIN_SEED_BASE, retention_norm, rollout
 from ibt.experts.expert import Expert, load_expert
 from ibt.profiles import Config
 from ibt.runs.steps import distill_cached
-from ibt.synth.logic import Variables, minimise
-from ibt.synth.rules import action_template_library, leaf_paths, literal_count
 from ibt.tasks.catalogue import Task, get_task
 
 
@@ -193,115 +192,6 @@ def open_iteration(cfg: Config, task: str, algo: str, iteration: int, seed: int 
                          config.weighted, steps, data, tree, run.trees[iteration])
 
 
-# ------------------------------------------------------------------------ 2. the synthesis chain
-@dataclass(frozen=True)
-class SynthesisChain:
-    """The stages from a decision tree to its Imitation-BT, with their sizes."""
-
-    stages: pd.DataFrame  # one row per stage: terms, literals (or conditions), nodes
-    per_action: pd.DataFrame  # one row per action: terms and literals at each stage
-    bt: BehaviorTree
-    tree_splits: int
-    tree_leaves: int
-
-    def node_breakdown(self) -> pd.DataFrame:
-        """Where the nodes are: tests, branching nodes and decisions, tree beside BT."""
-        types = self.bt.node_types()
-        composites = sum(types[k] for k in ("selector", "sequence", "fallback", "inverter"))
-        return pd.DataFrame({
-            "decision tree": {"tests (splits / conditions)": self.tree_splits,
-                              "branching (composites)": 0, "decisions (leaves / actions)":
-                              self.tree_leaves, "total": self.tree_splits + self.tree_leaves},
-            "Behavior Tree": {"tests (splits / conditions)": types["condition"],
-                              "branching (composites)": composites,
-                              "decisions (leaves / actions)": types["action"],
-                              "total": self.bt.node_count}})
-
-    def why_more_nodes(self) -> str:
-        """The node counts of tree and BT, explained with this tree's numbers."""
-        types = self.bt.node_types()
-        composites = self.bt.node_count - types["condition"] - types["action"]
-        paths = self.stages.set_index("stage").loc["2. paths", "literals"]
-        return (
-            f"The tree has {self.tree_splits} splits and {self.tree_leaves} leaves "
-            f"({self.tree_splits + self.tree_leaves} nodes): a split is a test and a branch point "
-            f"at once, shared by every leaf below it. The BT has {self.bt.node_count} nodes: "
-            f"{types['condition']} conditions, {composites} composites and {types['action']} "
-            f"actions. Written as rules, a split is repeated in the path of every leaf below it "
-            f"({paths} literals over {self.tree_leaves} paths); Espresso and the threshold merge "
-            f"remove many but not all of the repeats. The branching that the tree gets for free "
-            f"costs composite nodes in a BT (the root Selector, one Sequence per guarded action, "
-            f"a Fallback for a rule of several terms, a Sequence for a term of several "
-            f"literals). The BT saves only on decisions: one action node per action instead of "
-            f"one leaf per region.")
-
-
-def _terms_literals(terms: Seq[Any]) -> tuple[int, int]:
-    return len(terms), literal_count(list(terms))
-
-
-def synthesis_stages(tree: DecisionTreeClassifier, task: str | Task) -> SynthesisChain:
-    """Every stage of :func:`ibt.synth.imitation.imitation_bt` on ``tree``, with its counts.
-
-    Espresso and the merge are run here stage by stage (:func:`ibt.synth.logic.minimise` without,
-    then with the merge); the ordering, the default and the BT are ``imitation_bt``'s own.
-    """
-    from ibt.synth.imitation import imitation_bt
-
-    spec = get_task(task)
-    names = spec.action_names
-    paths = leaf_paths(tree)
-    atl = action_template_library(tree)
-    variables = Variables(t for terms in atl.values() for t in terms)
-    espresso = {a: minimise(terms, variables, merge=False) for a, terms in atl.items()}
-    merged = {a: minimise(terms, variables, merge=True) for a, terms in atl.items()}
-    result = imitation_bt(tree, spec)
-    order = [rs.action for rs in result.rule_sets]
-    default = result.default_action
-    guarded = [rs for rs in result.rule_sets if rs.action != default]
-    splits = int(tree.tree_.node_count - tree.get_n_leaves())
-    types = result.bt.node_types()
-
-    def row(stage: str, terms: int | None, literals: int | None, nodes: int | None,
-            note: str) -> dict[str, Any]:
-        return {"stage": stage, "terms": terms, "literals": literals, "nodes": nodes,
-                "note": note}
-
-    all_paths = [p.term for p in paths]
-    esp_t, esp_l = _terms_literals([t for ts in espresso.values() for t in ts])
-    mer_t, mer_l = _terms_literals([t for ts in merged.values() for t in ts])
-    stages = pd.DataFrame([
-        row("1. decision tree", None, splits, int(tree.tree_.node_count),
-            f"{splits} splits (literals: one test each), {tree.get_n_leaves()} leaves"),
-        row("2. paths", *_terms_literals(all_paths), None,
-            "one conjunction per leaf, root to leaf"),
-        row("3. DNF per action", *_terms_literals(all_paths), None,
-            f"the paths grouped by their leaf's action: {len(atl)} rule sets"),
-        row("4. Espresso", esp_t, esp_l, None, "each action's DNF minimised on its own"),
-        row("5. threshold merge", mer_t, mer_l, None,
-            "x <= a and x <= b -> x <= min(a, b); x > a and x > b -> x > max(a, b)"),
-        row("6. ordering and default", *_terms_literals([t for rs in guarded for t in rs.terms]),
-            None, f"guards sorted by k: {', '.join(names[a] for a in order if a != default)}; "
-                  f"default {names[default] if default is not None else '-'} (largest k) "
-                  f"goes last, unguarded"),
-        row("7. Behavior Tree", None, types["condition"], result.bt.node_count,
-            f"{types['condition']} conditions, "
-            f"{result.bt.node_count - types['condition'] - types['action']} composites, "
-            f"{types['action']} actions"),
-    ])
-    for col in ("terms", "literals", "nodes"):
-        stages[col] = stages[col].astype("Int64")
-    k = {rs.action: rs.k for rs in result.rule_sets}
-    per_action = pd.DataFrame([{
-        "action": names[a],
-        "paths": len(atl[a]), "path literals": literal_count(atl[a]),
-        "Espresso terms": len(espresso[a]), "Espresso literals": literal_count(espresso[a]),
-        "merged terms": len(merged[a]), "k (merged literals)": literal_count(merged[a]),
-        "k in the BT": k.get(a), "position": order.index(a) + 1 if a in order else None,
-        "default": a == default} for a in sorted(atl)])
-    return SynthesisChain(stages, per_action, result.bt, splits, int(tree.get_n_leaves()))
-
-
 # ------------------------------------------------------------------------ 3. distribution shift
 def visited_states(task: str | Task, drivers: dict[str, Any], seeds: Seq[int]
                    ) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -423,120 +313,6 @@ def schedule_table(cfg: Config, task: str, algo: str, schedule_labels: Seq[str],
     """:func:`schedule_view`'s facts for every schedule and leaf limit."""
     return pd.DataFrame([schedule_view(cfg, task, algo, s, n, seed).facts
                          for s in schedule_labels for n in leaf_limits])
-
-
-# ---------------------------------------------------------------------------- 5. edit the BT
-def feature_test(bt: BehaviorTree, feature: str, op: str, value: float | str) -> Node:
-    """One readable test as BT nodes: ``<=`` / ``>`` on any feature, ``==`` / ``!=`` on a
-    categorical one (``["location", "==", "charger"]``)."""
-    if feature not in bt.feature_names:
-        raise ValueError(f"unknown feature {feature!r}; the BT has {', '.join(bt.feature_names)}")
-    f = bt.feature_names.index(feature)
-    if op in ("<=", ">"):
-        return Condition(f, op, float(value))
-    labels = dict(bt.value_labels).get(f)
-    if op not in ("==", "!=") or labels is None or value not in labels:
-        raise ValueError(f"{feature} {op} {value!r}: use <= or > with a number, or == / != with "
-                         f"one of the feature's values {list(labels or [])}")
-    k, last = labels.index(value), len(labels) - 1
-    below, above = Condition(f, "<=", k - 0.5), Condition(f, ">", k + 0.5)
-    if op == "==":
-        parts = [c for c, keep in ((Condition(f, ">", k - 0.5), k > 0),
-                                   (Condition(f, "<=", k + 0.5), k < last)) if keep]
-        return parts[0] if len(parts) == 1 else Sequence(tuple(parts))
-    parts = [c for c, keep in ((below, k > 0), (above, k < last)) if keep]
-    return parts[0] if len(parts) == 1 else Fallback(tuple(parts))
-
-
-def guard(bt: BehaviorTree, when: Seq[Seq[Any]], action: str) -> Node:
-    """``Sequence(test, ..., action)``: do ``action`` when every test of ``when`` holds."""
-    if action not in bt.action_names:
-        raise ValueError(f"unknown action {action!r}; the BT has {', '.join(bt.action_names)}")
-    tests = [feature_test(bt, *test) for test in when]
-    return Sequence((*tests, Action(bt.action_names.index(action))))
-
-
-def add_guard(bt: BehaviorTree, node: Node, position: int = 0) -> BehaviorTree:
-    """A copy of ``bt`` with ``node`` inserted among the root Selector's children.
-
-    ``position`` 0 puts it first (it overrides every rule); ``-1`` just before the last child
-    (the default action), where it acts only where no rule fired.
-    """
-    if not isinstance(bt.root, Selector):
-        raise ValueError("add_guard edits a synthesised BT, whose root is a Selector")
-    children = list(bt.root.children)
-    children.insert(position, node)  # list.insert: -1 puts it before the last child
-    return BehaviorTree(Selector(tuple(children)), bt.feature_names, bt.action_names,
-                        bt.value_labels)
-
-
-def all_states(task: str | Task) -> np.ndarray:
-    """Every state of an integer-featured task's box (PackageDelivery: 1,188)."""
-    spec = get_task(task)
-    if not spec.integer_features:
-        raise ValueError(f"{spec.name} has continuous features: sample states instead")
-    ranges = [range(int(lo), int(hi) + 1) for lo, hi in zip(spec.low, spec.high, strict=True)]
-    return np.array(list(itertools.product(*ranges)), dtype=np.float32)
-
-
-def decision_diff(before: BehaviorTree, after: BehaviorTree, states: np.ndarray) -> pd.DataFrame:
-    """The states where two BTs decide differently, readable (categories by their labels)."""
-    x = as_features(states)
-    old, new = before.decide(x), after.decide(x)
-    changed = np.flatnonzero(old != new)
-    labels = dict(before.value_labels)
-    rows = []
-    for i in changed:
-        row = {name: (labels[f][int(x[i, f])] if f in labels else x[i, f])
-               for f, name in enumerate(before.feature_names)}
-        row.update({"before": before.action_names[old[i]], "after": after.action_names[new[i]]})
-        rows.append(row)
-    return pd.DataFrame(rows, columns=[*before.feature_names, "before", "after"])
-
-
-def expert_agreement(bt: BehaviorTree, expert: Any, task: str | Task, states: np.ndarray
-                     ) -> float:
-    """Percentage of ``states`` on which ``bt`` chooses the expert's action."""
-    spec = get_task(task)
-    expert_actions = expert.act(spec.observations(states))
-    return float(100 * np.mean(bt.decide(states) == expert_actions))
-
-
-def evaluate_variants(task: str | Task, policies: dict[str, Any],
-                      variants: dict[str, dict[str, Any]], seeds: Seq[int]) -> pd.DataFrame:
-    """Every policy on the same episodes of every environment variant (``{label: env
-    kwargs}``, e.g. ``{"drain 2": {"drain_scale": 2}}``): return and the task's outcome rates."""
-    from ibt.evaluate.rollouts import episode_metrics
-
-    spec = get_task(task)
-    rows = []
-    for variant, kwargs in variants.items():
-        for name, policy in policies.items():
-            result = rollout(spec, policy.act, seeds, env_kwargs=kwargs,
-                             n_envs=min(len(seeds), 100))  # one batch: seeded, so same episodes
-            rows.append({"environment": variant, "policy": name, "episodes": len(seeds),
-                         "mean_return": result.mean, "std_return": result.std,
-                         **episode_metrics(spec, result)})
-    return pd.DataFrame(rows)
-
-
-def guard_sweep(bt: BehaviorTree, when: Seq[Seq[Any]], action: str, values: Seq[float],
-                task: str | Task, variants: dict[str, dict[str, Any]], seeds: Seq[int]
-                ) -> pd.DataFrame:
-    """The guard of :func:`guard` put first in ``bt`` with its first test's value set to each
-    of ``values``, evaluated on every variant (one row per value and variant)."""
-    from ibt.evaluate.policies import BTPolicy
-
-    spec = get_task(task)
-    rows = []
-    for value in values:
-        tests = [[*when[0][:2], value], *when[1:]]
-        edited = add_guard(bt, guard(bt, tests, action))
-        table = evaluate_variants(spec, {"edited": BTPolicy(spec, edited)}, variants, seeds)
-        rows.append(table.drop(columns="policy").assign(
-            **{f"{when[0][0]} {when[0][1]}": value, "states changed": len(
-                decision_diff(bt, edited, all_states(spec)))}))
-    return pd.concat(rows, ignore_index=True)
 
 
 # ------------------------------------------------------------------------------ 6. exercises

@@ -429,8 +429,8 @@ def shift_figure(states: pd.DataFrame, axes: tuple[str, str], reference: str = "
 
 def diff_figure(diff: pd.DataFrame, task: str | Task, rows: str, columns: str) -> plt.Figure:
     """A region diff over two features of a discrete task: in each cell, how many of its states
-    changed decision (:func:`ibt.views.lesson.decision_diff`), out of how many."""
-    from ibt.views.lesson import all_states
+    changed decision (:func:`ibt.views.lesson_edits.decision_diff`), out of how many."""
+    from ibt.views.lesson_edits import all_states
 
     spec = get_task(task)
     labels = dict(spec.value_labels)
