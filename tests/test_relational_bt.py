@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from ibt.bt.executors import py_trees_decide, tick, to_py_trees
@@ -412,15 +412,21 @@ def test_a_synthesised_bt_decides_as_its_random_relational_tree(seed, leaves, n_
        threshold=st.floats(-5, 5, allow_nan=False),
        base=st.lists(st.floats(-3, 3, allow_nan=False, width=32), min_size=3, max_size=3),
        op=st.sampled_from(["<=", ">"]))
+@example(w1=0.5, w2=1.0, threshold=-2.2250738585e-313, base=[0.0, 0.0, 0.0], op="<=")
 def test_a_relational_script_condition_computes_exactly_as_ibt(w1, w2, threshold, base, op):
     """Law: the engine's ``w1 * x + w2 * target op T`` decides as ibt's floating-point rule
-    on the last float32 states on each side of the threshold and on others."""
+    on the last float32 states on each side of the threshold and on others; the XML reads
+    back to the same BT (a subnormal threshold, which the engine's parser rejects, is written
+    with both sides scaled by a power of two)."""
+    from ibt.export.btcpp import from_btcpp_xml
     from ibt.export.engine import EngineTree
 
     form = LinearForm(0, 2, w1, w2)
     bt = line_bt(Selector((Sequence((Condition.relational(form, op, threshold), Action(0))),
                            Action(1))))
-    engine = EngineTree(to_btcpp_xml(bt), LINE.feature_names, LINE.action_names)
+    xml = to_btcpp_xml(bt)
+    assert from_btcpp_xml(xml, LINE.feature_names, LINE.action_names).root == bt.root
+    engine = EngineTree(xml, LINE.feature_names, LINE.action_names)
     row = np.asarray(base, dtype=np.float32)
     states = np.asarray([row, *crossing_rows(form, threshold, row)], dtype=np.float32)
     assert np.array_equal(engine.decide(states), bt.decide(states))

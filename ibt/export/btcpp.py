@@ -80,6 +80,9 @@ BUILTIN_IDS = frozenset("""
 _CODE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>)\s*(\S+)\s*$")
 _KEY = r"([A-Za-z_][A-Za-z0-9_]*)"
 _FORM_CODE = re.compile(rf"^\s*(\S+)\s*\*\s*{_KEY}\s*\+\s*(\S+)\s*\*\s*{_KEY}\s*(<=|>)\s*(\S+)\s*$")
+#: the same, both sides scaled (a subnormal threshold): ``(w1 * a + w2 * b) * SCALE op T``
+_SCALED_FORM_CODE = re.compile(rf"^\s*\(\s*(\S+)\s*\*\s*{_KEY}\s*\+\s*(\S+)\s*\*\s*{_KEY}\s*\)"
+                               rf"\s*\*\s*(\S+)\s*(<=|>)\s*(\S+)\s*$")
 _XML_DECLARATION = '<?xml version="1.0" encoding="UTF-8"?>\n'
 
 
@@ -138,11 +141,18 @@ def action_ids(action_names: Seq[str]) -> list[str]:
     return ids
 
 
+#: a relational condition's two sides are multiplied by this where its threshold is subnormal:
+#: every subnormal double times 2**300 is normal, and no sum of two weighted float32 features
+#: overflows (its magnitude stays far below 2**724)
+SUBNORMAL_SCALE = 2.0**300
+
+
 def threshold_text(threshold: float) -> str:
     """The threshold as the engine parses it back to the same double (``repr``).
 
     ``std::stod`` rejects subnormal doubles, so one of those becomes the largest float32 value
-    at or below it: ``x op t`` and ``x op that`` agree for every float32 ``x``.
+    at or below it: ``x op t`` and ``x op that`` agree for every float32 ``x`` (a relational
+    condition, whose left side is a double, is scaled instead: :func:`condition_code`).
     """
     t = float(threshold)
     if not math.isfinite(t):
@@ -192,7 +202,12 @@ def condition_code(node: Condition, keys: Seq[str]) -> str:
             if abs(weight) < sys.float_info.min:
                 raise ValueError(f"weight {weight!r} of {node.form} is subnormal, which "
                                  "BehaviorTree.CPP's number parser rejects; use a larger one")
-        return f"{node.form.script(keys)} {node.op} {threshold_text(node.threshold)}"
+        t = float(node.threshold)
+        if t != 0.0 and abs(t) < sys.float_info.min:  # stod rejects it, and the sum is a
+            # double (no float32 snap): scale both sides by a power of two, which is exact
+            return (f"({node.form.script(keys)}) * {SUBNORMAL_SCALE!r} {node.op} "
+                    f"{threshold_text(t * SUBNORMAL_SCALE)}")
+        return f"{node.form.script(keys)} {node.op} {threshold_text(t)}"
     return f"{keys[node.feature]} {node.op} {threshold_text(node.threshold)}"
 
 
@@ -310,7 +325,14 @@ def check_layout(root: ET.Element) -> None:
 
 def _form_condition(match: re.Match[str], code: str, feature_of: dict[str, int]) -> Condition:
     """``W1 * KEY1 + W2 * KEY2 OP NUMBER`` back to a relational condition."""
-    w1, k1, w2, k2, op, number = match.groups()
+    if match.re is _SCALED_FORM_CODE:
+        w1, k1, w2, k2, scale, op, number = match.groups()
+        if scale != repr(SUBNORMAL_SCALE):
+            raise ValueError(f"ScriptCondition {code!r}: a scaled relational test must be "
+                             f"scaled by {SUBNORMAL_SCALE!r} (2**300), as to_btcpp_xml writes")
+        number = repr(float(number) / SUBNORMAL_SCALE)  # exact: a power of two
+    else:
+        w1, k1, w2, k2, op, number = match.groups()
     for key in (k1, k2):
         if key not in feature_of:
             raise ValueError(f"a ScriptCondition reads the blackboard key {key!r}, which is none "
@@ -324,7 +346,7 @@ def _form_condition(match: re.Match[str], code: str, feature_of: dict[str, int])
 
 
 def _script_condition(code: str, feature_of: dict[str, int]) -> Condition:
-    form = _FORM_CODE.match(code)
+    form = _FORM_CODE.match(code) or _SCALED_FORM_CODE.match(code)
     if form:
         return _form_condition(form, code, feature_of)
     match = _CODE.match(code)
