@@ -246,18 +246,3 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
     _, whole = stages.search(cfg, agent, sources, 4, 0, restarts=3)
     assert whole.seeds == (0, 1, 2) and whole.choice_means[0] == cut.choice_means[0]
 
-
-def test_max_nodes_stops_the_distillation_at_the_first_rung_over_it(agents, tmp_path):
-    """Every BT at 4 leaves is over one node: 8 and 16 leaves are not distilled, and the
-    searches (stopped here) would bisect the one rung distilled."""
-    import ibt
-
-    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
-    settings = Settings(keep=1.0, rungs=(4, 8, 16), restarts=1, max_nodes=1)
-    ladder = run_ladder(cfg, _line_agent(agents), settings, agent_mean=0.0, random_mean=-10.0,
-                        on_step=lambda done, step: "enough" if step.startswith("search")
-                        else None)
-    assert ladder.stopped == "enough"
-    assert all(step.endswith("at 4 leaves") for step in ladder.steps)
-    assert ladder.skipped == ["search axis at 4 leaves"]
-    assert "no leaf limit above 4 was distilled" in ladder.notes[0]

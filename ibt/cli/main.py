@@ -219,8 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="wall-clock budget such as 90s, 10m, 1h30m; the best BT found by then "
                     "is recommended (default 10m); a rerun with more time resumes from the cache")
     pl.add_argument("--max-nodes", type=MAX_NODES, default=None, metavar="N",
-                    help="recommend only BTs of at most N nodes (no larger leaf limit is "
-                    "distilled once every BT at a limit is over N)")
+                    help="recommend only BTs of at most N nodes")
     pl.add_argument("--restarts", type=RESTARTS, default=3, metavar="K",
                     help="seeds of each structure search, chosen among on held-out episodes "
                     "(default 3)")
