@@ -4,8 +4,8 @@
 one tree, verified against it (a BT that disagrees raises and nothing is cached), with one row
 of structure facts. The paper's grid asks for its synthesis study as well (``analysis``: the
 imitation-bt construction under each default-action strategy and with don't-cares); the
-pipeline does not pay for it. Both key the entry the same way, on the tree's digest and the
-method it came from, so the two never collide and never disagree.
+pipeline does not pay for it. Both key the entry the same way, on the tree's digest, the method
+it came from and whether the row holds that study, so two rows of one key never differ.
 
 :func:`synthesise` is the stage the ladder calls: every registered synthesiser's BT of a
 tree (the front's synthesisers for a command tree, whose BTs carry its command table).
@@ -93,6 +93,8 @@ def synthesised(cfg: Config, task: Task, algo: str, method: str, seed: int, sour
                               "source_method": source_method, "tree": tree_key(tree)}
     if synthesiser.version is not None:  # its own version: a changed method re-keys its BTs
         params["method_version"] = synthesiser.version_number()
+    if not analysis:  # the row's shape is in the key (the grid's keys, with it, predate the flag)
+        params["analysis"] = False
 
     def compute() -> dict[str, Any]:
         if isinstance(tree, CommandArrays):
