@@ -1,6 +1,6 @@
 """Optimal small trees (ConTree) versus CART as the start of refinement, on LunarLander-v3.
 
-A measured experiment, not part of the package. Three steps, each reading the previous one's
+A measured experiment, not part of the package. Four steps, each reading the previous one's
 plain-data output from ``--out`` (npz / JSON, never pickles):
 
 * ``collect``: the Imitation-BT interactive loop (``ibt.distill.loop.interactive_loop``, the
@@ -13,7 +13,9 @@ plain-data output from ``--out`` (npz / JSON, never pickles):
 * ``evaluate``: every tree as a policy on the 100 final-evaluation episodes
   (``ibt.evaluate.rollouts.final_seeds``), the same seeds for all; with ``--refine`` each start
   is refined by return (``ibt.refine.by_return.refine``, a small budget, the same for every
-  tree) and evaluated again on the same episodes.
+  tree) and evaluated again on the same episodes;
+* ``paired``: two trees' returns on the same episodes, start and each refinement, as a paired
+  difference with its standard error.
 
 pycontree is not a project dependency: install it into a separate folder and put that folder on
 PYTHONPATH after the worktree (see RESULTS.md). Seeds are explicit; the same command gives the
@@ -98,10 +100,10 @@ def write_json(path: Path, doc: Any) -> None:
     os.replace(tmp, path)
 
 
-def collect(out: Path, leaves: int, iterations: int) -> None:
+def collect(out: Path, leaves: int, iterations: int, algo: str) -> None:
     cfg = profile_config("paper", cache_dir=out / "cache", progress=False)
     task = get_task(TASK)
-    agent = committed_agent(task, "ppo")
+    agent = committed_agent(task, algo)
     config = distill_config(cfg, task, max_leaf_nodes=leaves, n_iterations=iterations)
     learner = RecordingLearner(ClassifierLearner(config, SEED), task)
     start = time.perf_counter()
@@ -115,7 +117,7 @@ def collect(out: Path, leaves: int, iterations: int) -> None:
                         y_fit=y_fit)
     os.replace(tmp, out / f"data_L{leaves}.npz")
     write_json(out / f"loop_L{leaves}.json", {
-        "config": config.as_params(), "iterations": run.iterations,
+        "algo": algo, "config": config.as_params(), "iterations": run.iterations,
         "best_index": run.best_index, "best_tree": tree_doc(run.best_tree),
         "wall_seconds": time.perf_counter() - start})
     print(f"collect L={leaves}: {len(x_raw)} labels, best iteration {run.best_index} "
@@ -187,7 +189,7 @@ def fit(out: Path, leaves: int, time_limit: float, depths: list[int]) -> None:
 
 
 def evaluate(out: Path, leaves: int, episodes: int, refine_episodes: int,
-             names: list[str] | None) -> None:
+             names: list[str] | None, refine_seed: int = SEED) -> None:
     task = get_task(TASK)
     seeds = final_seeds(episodes)
     trees = json.loads((out / f"trees_L{leaves}.json").read_text())
@@ -209,44 +211,80 @@ def evaluate(out: Path, leaves: int, episodes: int, refine_episodes: int,
             config = replace(task_config(task), stages=("cma", "leaves"),
                              episodes=refine_episodes)
             t0 = time.process_time()
-            refined = refine(tree, task, config, SEED, progress=False).best_tree
-            row["refined"] = {**score(task, refined, seeds),
+            refined = refine(tree, task, config, refine_seed, progress=False).best_tree
+            key = f"refined_{refine_episodes}" + (f"_s{refine_seed}" if refine_seed else "")
+            row[key] = {**score(task, refined, seeds),
                               "nodes": int(refined.tree_.node_count),
                               "leaves": int(refined.get_n_leaves()),
                               "refine_episodes": refine_episodes,
                               "refine_cpu_seconds": time.process_time() - t0,
                               "tree": tree_doc(refined)}
-            r = row["refined"]
+            r = row[key]
             print(f"{name:16s} refined {r['mean']:8.1f} +- {r['std']:6.1f} "
                   f"share>=200 {r['share_200']:.2f} nodes {r['nodes']}")
         write_json(path, results)
 
 
+def paired(out: Path, leaves: int, first: str, second: str, episodes: int) -> None:
+    """The paired difference ``second - first`` on the same final episodes, for the starts and
+    every refinement both trees have (refined trees re-scored from their stored arrays)."""
+    task = get_task(TASK)
+    seeds = final_seeds(episodes)
+    trees = json.loads((out / f"trees_L{leaves}.json").read_text())
+    results = json.loads((out / f"eval_L{leaves}.json").read_text())
+    stages = ["start", *sorted(k for k in results[first] if k.startswith("refined_")
+                               and k in results[second])]
+    rows = []
+    for stage in stages:
+        returns = []
+        for name in (first, second):
+            doc = trees[name]["tree"] if stage == "start" else results[name][stage]["tree"]
+            returns.append(np.asarray(score(task, tree_from_doc(doc), seeds)["returns"]))
+        diff = returns[1] - returns[0]
+        rows.append({"stage": stage, "first": first, "second": second,
+                     "first_mean": float(returns[0].mean()),
+                     "second_mean": float(returns[1].mean()),
+                     "diff_mean": float(diff.mean()),
+                     "diff_se": float(diff.std(ddof=1) / np.sqrt(len(diff)))})
+        r = rows[-1]
+        print(f"{stage:18s} {first} {r['first_mean']:7.1f}  {second} {r['second_mean']:7.1f}  "
+              f"diff {r['diff_mean']:+6.1f} +- {r['diff_se']:.1f} (paired SE)")
+    write_json(out / f"paired_L{leaves}_{first}_{second}.json", rows)
+
+
 def score(task: Any, tree: DecisionTreeClassifier, seeds: list[int]) -> dict[str, Any]:
     returns = rollout(task, TreePolicy(task, tree).act, seeds).returns
     return {"mean": float(np.mean(returns)), "std": float(np.std(returns)),
-            "share_200": float(np.mean(returns >= 200)), "episodes": len(seeds)}
+            "share_200": float(np.mean(returns >= 200)), "episodes": len(seeds),
+            "returns": [float(r) for r in returns]}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("step", choices=("collect", "fit", "evaluate"))
+    parser.add_argument("step", choices=("collect", "fit", "evaluate", "paired"))
     parser.add_argument("--out", type=Path, default=Path("/tmp/contree_out"))
+    parser.add_argument("--algo", default="ppo", help="the committed expert (collect)")
     parser.add_argument("--leaves", type=int, default=8, help="the loop's CART leaf limit")
     parser.add_argument("--iterations", type=int, default=20)
     parser.add_argument("--time-limit", type=float, default=300.0)
     parser.add_argument("--depths", type=int, nargs="+", default=[2, 3])
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--refine-episodes", type=int, default=0)
+    parser.add_argument("--refine-seed", type=int, default=SEED)
+    parser.add_argument("--pair", nargs=2, default=["cart-L8", "contree-d3"],
+                        help="paired: the two trees compared (second minus first)")
     parser.add_argument("--only", nargs="*", help="evaluate only these trees")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if args.step == "collect":
-        collect(args.out, args.leaves, args.iterations)
+        collect(args.out, args.leaves, args.iterations, args.algo)
     elif args.step == "fit":
         fit(args.out, args.leaves, args.time_limit, args.depths)
+    elif args.step == "paired":
+        paired(args.out, args.leaves, *args.pair, args.episodes)
     else:
-        evaluate(args.out, args.leaves, args.episodes, args.refine_episodes, args.only)
+        evaluate(args.out, args.leaves, args.episodes, args.refine_episodes, args.only,
+                 args.refine_seed)
 
 
 if __name__ == "__main__":
