@@ -33,6 +33,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ibt.runs.engine.agent import committed_agent
+from ibt.runs.engine.stages import distill_config
 from sklearn.tree import DecisionTreeClassifier
 
 from ibt.distill.loop import ClassifierLearner, interactive_loop
@@ -40,8 +42,6 @@ from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import final_seeds, rollout
 from ibt.profiles import config as profile_config
 from ibt.refine.tree_arrays import TreeArrays, _from_nested
-from ibt.runs.engine.agent import committed_agent
-from ibt.runs.engine.stages import distill_config
 from ibt.tasks.catalogue import get_task
 
 TASK = "LunarLander-v3"
