@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -16,6 +17,17 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import pandas as pd
+
+
+def check_regular(path: str | Path, info: os.stat_result, limit: int, what: str) -> None:
+    """``ValueError`` unless ``info`` (``path``'s stat) is a regular file of at most ``limit``
+    bytes: a device such as ``/dev/zero`` or a named pipe would never end."""
+    if not stat.S_ISREG(info.st_mode):
+        raise ValueError(f"{path} is not a regular file (a device, pipe or socket); pass the "
+                         f"{what} itself")
+    if info.st_size > limit:
+        raise ValueError(f"{path} is {info.st_size:,} bytes, more than a {what} may be "
+                         f"({limit:,}); pass the right file")
 
 
 def file_digest(path: str | Path) -> str:

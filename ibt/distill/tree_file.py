@@ -28,7 +28,6 @@ from __future__ import annotations
 import json
 import os
 import shlex
-import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -41,7 +40,7 @@ from ibt.distill.tree_codec import (
     tree_from_data,
     tree_to_data,
 )
-from ibt.files import atomic_write_text
+from ibt.files import atomic_write_text, check_regular
 
 if TYPE_CHECKING:
     from ibt.tasks.task import Task
@@ -75,12 +74,7 @@ def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
         info = os.stat(path)
     except OSError as err:
         raise ValueError(f"cannot read the {what} {path} ({err.strerror})") from None
-    if not stat.S_ISREG(info.st_mode):
-        raise ValueError(f"{path} is not a regular file (a device, pipe or socket); pass the "
-                         f"{what} itself")
-    if info.st_size > limit:
-        raise ValueError(f"{path} is {info.st_size:,} bytes, more than a {what} may be "
-                         f"({limit:,}); pass the right file")
+    check_regular(path, info, limit, what)
     with open(path, "rb") as fh:  # read at most limit + 1 bytes: the file may grow meanwhile
         data = fh.read(limit + 1)
     if len(data) > limit:

@@ -18,13 +18,13 @@ from __future__ import annotations
 import json
 import math
 import os
-import stat as stat_module
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ibt.files import check_regular
 from ibt.tasks.task import Task
 
 
@@ -50,13 +50,7 @@ NOT_UNPICKLED: dict[str, Any] = {
 
 def _check_regular(path: Path, limit: int, what: str) -> None:
     """``ValueError`` unless ``path`` is a regular file of at most ``limit`` bytes."""
-    info = os.stat(path)
-    if not stat_module.S_ISREG(info.st_mode):
-        raise ValueError(f"{path} is not a regular file (a device, pipe or socket); pass the "
-                         f"{what} itself")
-    if info.st_size > limit:
-        raise ValueError(f"{path} is {info.st_size:,} bytes, more than a {what} may be "
-                         f"({limit:,}); pass the right file")
+    check_regular(path, os.stat(path), limit, what)
 
 
 def _bounds_equal(a: Any, b: Any) -> bool:
