@@ -46,14 +46,13 @@ def command_bt(arrays: Any, task: Task, method: str) -> Any:
     return replace(bt, commands=tree.commands)
 
 
-def _classifier_entry(tree: Any, task: Task, algo: str, method: str, seed: int,
+def _classifier_entry(synthesiser: Any, tree: Any, task: Task, algo: str, method: str, seed: int,
                       source_method: str, analysis: bool) -> dict[str, Any]:
     """Synthesise, verify and describe one BT of a classification tree."""
     from ibt.synth.imitation import DEFAULT_STRATEGIES, imitation_bt, verify
-    from ibt.synth.registry import get_synthesiser
 
     started = time.process_time()
-    result = get_synthesiser(method)(tree, task)
+    result = synthesiser(tree, task)
     seconds = time.process_time() - started
     checked = verify(result.bt, tree, task)  # raises NotEquivalentError: nothing is cached
     types = result.bt.node_types()
@@ -102,7 +101,8 @@ def synthesised(cfg: Config, task: Task, algo: str, method: str, seed: int, sour
             return {"row": {"task": task.name, "expert": algo, "method": method, "seed": seed,
                             "source_method": source_method, "nodes": bt.node_count,
                             "equivalent": True}, "bt": bt}
-        return _classifier_entry(tree, task, algo, method, seed, source_method, analysis)
+        return _classifier_entry(synthesiser, tree, task, algo, method, seed, source_method,
+                                 analysis)
 
     return load_or_compute("synthesis", params, compute, cache_dir=cfg.cache_dir,
                            codec="synthesis", refresh=cfg.refresh)

@@ -147,6 +147,11 @@ def action_ids(action_names: Seq[str]) -> list[str]:
 SUBNORMAL_SCALE = 2.0**300
 
 
+def _subnormal(number: float) -> bool:
+    """A nonzero double below the smallest normal one, which ``std::stod`` rejects."""
+    return number != 0.0 and abs(number) < sys.float_info.min
+
+
 def threshold_text(threshold: float) -> str:
     """The threshold as the engine parses it back to the same double (``repr``).
 
@@ -157,7 +162,7 @@ def threshold_text(threshold: float) -> str:
     t = float(threshold)
     if not math.isfinite(t):
         raise ValueError(f"threshold {t} is not finite; BehaviorTree.CPP scripts need a number")
-    if t != 0.0 and abs(t) < sys.float_info.min:
+    if _subnormal(t):
         below = np.float32(t)
         if float(below) > t:
             below = np.nextafter(below, np.float32(-np.inf))
@@ -203,8 +208,8 @@ def condition_code(node: Condition, keys: Seq[str]) -> str:
                 raise ValueError(f"weight {weight!r} of {node.form} is subnormal, which "
                                  "BehaviorTree.CPP's number parser rejects; use a larger one")
         t = float(node.threshold)
-        if t != 0.0 and abs(t) < sys.float_info.min:  # stod rejects it, and the sum is a
-            # double (no float32 snap): scale both sides by a power of two, which is exact
+        if _subnormal(t):  # the sum is a double (no float32 snap): scale both sides by a
+            # power of two, which is exact
             return (f"({node.form.script(keys)}) * {SUBNORMAL_SCALE!r} {node.op} "
                     f"{threshold_text(t * SUBNORMAL_SCALE)}")
         return f"{node.form.script(keys)} {node.op} {threshold_text(t)}"
@@ -325,12 +330,12 @@ def check_layout(root: ET.Element) -> None:
 
 def _form_condition(match: re.Match[str], code: str, feature_of: dict[str, int]) -> Condition:
     """``W1 * KEY1 + W2 * KEY2 OP NUMBER`` back to a relational condition."""
-    if match.re is _SCALED_FORM_CODE:
+    scaled = match.re is _SCALED_FORM_CODE
+    if scaled:
         w1, k1, w2, k2, scale, op, number = match.groups()
         if scale != repr(SUBNORMAL_SCALE):
             raise ValueError(f"ScriptCondition {code!r}: a scaled relational test must be "
                              f"scaled by {SUBNORMAL_SCALE!r} (2**300), as to_btcpp_xml writes")
-        number = repr(float(number) / SUBNORMAL_SCALE)  # exact: a power of two
     else:
         w1, k1, w2, k2, op, number = match.groups()
     for key in (k1, k2):
@@ -340,7 +345,8 @@ def _form_condition(match: re.Match[str], code: str, feature_of: dict[str, int])
                              "XML from another task?")
     try:
         form = LinearForm(feature_of[k1], feature_of[k2], float(w1), float(w2))
-        return Condition.relational(form, op, float(number))
+        threshold = float(number) / SUBNORMAL_SCALE if scaled else float(number)  # exact
+        return Condition.relational(form, op, threshold)
     except ValueError as err:
         raise ValueError(f"ScriptCondition {code!r}: {err}") from None
 
