@@ -70,10 +70,14 @@ def test_the_searches_bisect_the_rungs_for_the_smallest_that_keeps(rungs, first_
     rung that keeps it (none: every probe failed) in at most ceil(log2(n + 1)) searches."""
     rungs = sorted(rungs)
     kept = set(rungs[first_kept:])
-    probed: list[int] = []
-    bisection(rungs, lambda r: probed.append(r) or r in kept)
+    probed: list[tuple[int, bool]] = []
+    bisection(rungs, lambda r, last: probed.append((r, last)) or r in kept)
     assert len(probed) <= math.ceil(math.log2(len(rungs) + 1))
-    assert min(kept & set(probed), default=None) == min(kept, default=None)
+    assert min(kept & {r for r, _ in probed}, default=None) == min(kept, default=None)
+    # "last" is said of the final probe only, and always where that probe failed
+    assert not any(last for _, last in probed[:-1])
+    final, last = probed[-1]
+    assert last or final in kept
 
 
 def test_a_step_that_would_end_past_the_deadline_is_not_started(agents, tmp_path,
@@ -245,4 +249,42 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
     assert cut.seeds == (0,) and len(rounds) == 1 and len(cut.choice_means) == 1
     _, whole = stages.search(cfg, agent, sources, 4, 0, restarts=3)
     assert whole.seeds == (0, 1, 2) and whole.choice_means[0] == cut.choice_means[0]
+    # time to spare: rounds go on past `restarts` up to `most`; without a deadline they do not
+    _, more = stages.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2, most=5,
+                            next_round=lambda seconds: True)
+    assert more.seeds == (0, 1, 2, 3, 4) and more.choice_means[:3] == whole.choice_means
+    _, capped = stages.search(cfg, agent, sources, 4, 0, restarts=3, most=5)
+    assert capped.seeds == (0, 1, 2)
 
+
+@pytest.mark.parametrize("seconds, rungs, most", [(3600.0, (4,), 8), (None, (4,), None),
+                                                   (3600.0, (4, 8), None)])
+def test_only_the_ladders_last_step_spends_spare_time_on_restarts(agents, tmp_path, monkeypatch,
+                                                                  seconds, rungs, most):
+    """The bisection's last search, with a deadline and nothing after it, may run up to
+    ``EXTRA_RESTARTS`` times the restarts; a search with a probe after it may not."""
+    import ibt
+
+    asked: list[int | None] = []
+    search = stages.search
+
+    def recorded(*args, **kwargs):
+        asked.append(kwargs.pop("most"))
+        return search(*args, **kwargs)
+
+    monkeypatch.setattr(stages, "search", recorded)
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    run_ladder(cfg, _line_agent(agents), Settings(keep=1.01, rungs=rungs, restarts=2,
+                                                  relational=False),
+               agent_mean=0.0, random_mean=-10.0, deadline=Deadline(seconds))
+    assert asked[0] == most
+
+
+
+def test_the_restarts_help_states_the_ladders_extra_restarts(capsys):
+    from ibt.cli import build_parser
+    from ibt.engine.ladder import EXTRA_RESTARTS
+
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["pipeline", "--help"])
+    assert f"up to {EXTRA_RESTARTS}K" in " ".join(capsys.readouterr().out.split())

@@ -222,7 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="recommend only BTs of at most N nodes")
     pl.add_argument("--restarts", type=RESTARTS, default=3, metavar="K",
                     help="seeds of each structure search, chosen among on held-out episodes "
-                    "(default 3)")
+                    "(default 3); the ladder's last search spends time left over on up to 4K")
     pl.add_argument("--jobs", type=JOBS, default=None, metavar="N",
                     help="processes for the restarts (default: the machine's cores; a Dask "
                     "cluster when IBT_DASK_SCHEDULER holds its address)")

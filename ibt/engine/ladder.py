@@ -27,7 +27,9 @@ distilled then refined, smallest first, up to the first rung that keeps the targ
 The ladder is anytime: between steps (each one cached whole) it checks the deadline and the
 caller's ``on_step`` callback, and it does not start a step when the longest step of its kind
 so far took longer than the time left (it would run past the budget), nor another round of a
-search's restarts unless twice the last round (the round, then the polish) fits; Ctrl-C or
+search's restarts unless twice the last round (the round, then the polish) fits. The last
+search the bisection can make spends the time left over on further restarts (up to
+``EXTRA_RESTARTS`` times the asked number), since nothing after it needs the time; Ctrl-C or
 SIGTERM inside
 a step ends that step unfinished (nothing of it is cached) and the ladder returns what it has,
 marked as stopped. A rerun with a longer deadline resumes from the cache.
@@ -94,6 +96,11 @@ class Candidate:
                 "bt_nodes": self.bt_nodes, "bt_method": self.bt_method,
                 **{f"nodes_{m}": bt.node_count for m, bt in self.bts.items()},
                 "mean_return": self.mean_return, "retention_norm": self.retention}
+
+
+#: on the ladder's last search, with a deadline, restarts go on up to this many times the
+#: asked number while another round and the polish fit in the time left
+EXTRA_RESTARTS = 4
 
 
 class Deadline:
@@ -261,15 +268,19 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
     learner = search_learner(learners)
     largest = max(distilled)
 
-    def probe(leaves: int) -> bool:
+    def probe(leaves: int, last: bool = False) -> bool:
         sources = _distinct([distilled[leaves]["axis"], distilled[largest]["axis"]])
+        # the ladder's last step (no probe follows, nothing to refine after it) spends the
+        # time left on further restarts
+        final = last and kept is None and deadline.seconds is not None
+        most = EXTRA_RESTARTS * settings.restarts if final else None
         step(f"search {learner} at {leaves} leaves", partial(
             stages.search, cfg, agent, sources, leaves, settings.seed,
             restarts=settings.restarts, relational=learner == "relational",
             scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules,
             # another round, then the polish of the winner (measured on LunarLander at 0.6-0.7
             # of a round), must fit in the time left
-            next_round=lambda seconds: 2 * seconds <= deadline.left()),
+            next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most),
             leaves, "searched", learner)
         info = out.candidates[-1].search
         done = len(info.seeds) if info is not None else settings.restarts
@@ -312,15 +323,16 @@ def search_learner(learners: tuple[str, ...]) -> str:
     return "relational" if "relational" in learners else "axis"
 
 
-def bisection(rungs: list[int], probe: Callable[[int], bool]) -> None:
-    """A binary search for the smallest rung whose probe keeps the target (``probe(rung)``
-    runs it and says whether it kept). A search costs the same episodes at every rung, so on a
-    task whose episodes are slow (LunarLander: 10-20 minutes a search on two cores) a budget
-    of a few searches reaches the middle of the ladder instead of its smallest rungs."""
+def bisection(rungs: list[int], probe: Callable[[int, bool], bool]) -> None:
+    """A binary search for the smallest rung whose probe keeps the target (``probe(rung,
+    last)`` runs it and says whether it kept; ``last``: no probe can follow it). A search costs
+    the same episodes at every rung, so on a task whose episodes are slow (LunarLander: 10-20
+    minutes a search on two cores) a budget of a few searches reaches the middle of the ladder
+    instead of its smallest rungs."""
     lo, hi = 0, len(rungs) - 1
     while lo <= hi:
         mid = (lo + hi) // 2
-        if probe(rungs[mid]):
+        if probe(rungs[mid], lo == hi):
             hi = mid - 1
         else:
             lo = mid + 1

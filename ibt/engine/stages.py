@@ -346,7 +346,8 @@ def _import_modules(modules: tuple[str, ...]) -> None:
 def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int, *,
            restarts: int = 1, relational: bool = False, scale: float = 1.0,
            n_jobs: int = 1, env_modules: tuple[str, ...] = (),
-           next_round: Callable[[float], bool] | None = None) -> tuple[Any, SearchInfo]:
+           next_round: Callable[[float], bool] | None = None,
+           most: int | None = None) -> tuple[Any, SearchInfo]:
     """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
     ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes, the
     best polished (CMA-ES on thresholds, then free pruning) and returned.
@@ -354,18 +355,21 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     The restarts run in rounds of ``n_jobs`` (each restart cached on its own);
     ``next_round(seconds)``, given the last round's wall time, says whether another round may
     start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
-    with more time adds the others from the cache."""
+    with more time adds the others from the cache. With ``next_round``, rounds go on past
+    ``restarts`` up to ``most`` seeds while it allows (time left over is spent on restarts);
+    each round runs at most ``n_jobs`` seeds."""
     from ibt.engine.parallel import parallel_map
     from ibt.evaluate.policies import TreePolicy
     from ibt.refine.relational import best_tree
 
     task = agent.task
     config = budgets.search_config(cfg, task, leaves, scale)
-    quiet = replace(cfg, progress=cfg.progress and restarts == 1)
-    width = max(1, min(n_jobs, restarts))
+    most = restarts if next_round is None else max(restarts, most or restarts)
+    quiet = replace(cfg, progress=cfg.progress and most == 1)
+    width = max(1, min(n_jobs, most))
     records: list[Any] = []
-    while len(records) < restarts:
-        batch = range(seed + len(records), seed + min(restarts, len(records) + width))
+    while len(records) < most:
+        batch = range(seed + len(records), seed + min(most, len(records) + width))
         began = time.monotonic()
         records += parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
                                               env_modules) for s in batch], n_jobs=n_jobs)
