@@ -35,6 +35,7 @@ from ibt.engine.synthesis import command_bt
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.commands import CommandArrays, CommandRefinement
+from ibt.runs import anchors
 from ibt.runs.grid import expert_evaluation
 from ibt.synth.commands import (
     CommandBTPolicy,
@@ -178,19 +179,6 @@ def point_bt(cfg: Config, point: BoxPoint) -> BehaviorTree:
     return BehaviorTree.from_dict(evaluate_cached(cfg, get_task(point.task), arrays)["bt"])
 
 
-#: The published anchors: regression trees distilled from the SB3-zoo PPO expert by
-#: KohlerHECTOR/interpretable-rl-zoo, run by a previous session here on 50 episodes, and ICCT's
-#: DAgger tree baseline as its README reports it; a tree of L leaves has 2L - 1 nodes.
-ANCHORS: tuple[tuple[str, str, int, float], ...] = (
-    ("interpretable-rl-zoo tree, run here", "LunarLanderContinuous-v3", 8, 61.2),
-    ("interpretable-rl-zoo tree, run here", "LunarLanderContinuous-v3", 16, 129.5),
-    ("interpretable-rl-zoo tree, run here", "LunarLanderContinuous-v3", 32, 202.8),
-    ("ICCT DAgger tree (published)", "LunarLanderContinuous-v3", 32, 184.7),
-    ("interpretable-rl-zoo tree, run here", "Pendulum-v1", 8, -767.4),
-    ("interpretable-rl-zoo tree, run here", "Pendulum-v1", 16, -420.4),
-    ("interpretable-rl-zoo tree, run here", "Pendulum-v1", 32, -287.1),
-)
-
 #: The done-when bars, set before the runs: (task, most leaves, least mean return).
 TARGETS: tuple[tuple[str, int, float], ...] = (
     ("LunarLanderContinuous-v3", 16, 210.0), ("Pendulum-v1", 16, -250.0),
@@ -198,9 +186,10 @@ TARGETS: tuple[tuple[str, int, float], ...] = (
 
 
 def anchor_table(tasks: list[str]) -> pd.DataFrame:
-    """:data:`ANCHORS` of ``tasks`` (source, task, leaves, tree_nodes, mean_return)."""
-    rows = [{"source": s, "task": t, "leaves": n, "tree_nodes": 2 * n - 1, "mean_return": r}
-            for s, t, n, r in ANCHORS if t in tasks]
+    """:data:`ibt.runs.anchors.CONTINUOUS` of ``tasks`` (source, task, leaves, tree_nodes,
+    mean_return)."""
+    rows = [{"source": a.source, "task": a.task, "leaves": a.leaves, "tree_nodes": a.nodes,
+             "mean_return": a.mean_return} for a in anchors.CONTINUOUS if a.task in tasks]
     return pd.DataFrame(rows, columns=["source", "task", "leaves", "tree_nodes", "mean_return"])
 
 

@@ -20,8 +20,8 @@ is verified), so a tree's final evaluation is its BT's.
 3. synthesise every verified BT of the refined tree and keep the smallest.
 
 The four paper methods and their numbers are untouched: this module only reads their cached
-distillations. :data:`ANCHORS` holds published reference points (MENS-DT-RL), converted onto our
-normalised scale with our random baselines and experts.
+distillations. :data:`ibt.runs.anchors.DISCRETE` holds the published reference points
+(MENS-DT-RL), converted onto our normalised scale with our random baselines and experts.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ from ibt.engine.stages import refinement_cached, smallest_bt
 from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
 from ibt.refine.by_return import RefineConfig, Refinement
+from ibt.runs import anchors
 from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.runs.steps import distill_cached
 from ibt.synth.registry import front_synthesisers, get_synthesiser
@@ -53,47 +54,11 @@ STRUCTURE = "imitation-bt+s"  # structure search by return, then a polish: ibt.r
 SOURCE_METHODS = ("bc", "dagger", "viper", "imitation-bt")
 
 
-@dataclass(frozen=True)
-class Anchor:
-    """A published small tree, as its paper reports it."""
-
-    source: str
-    task: str
-    nodes: int  # the tree's node count (leaves + splits), as published
-    leaves: int | None
-    mean_return: float
-    std_return: float | None
-    # the bar "ahead of it at its own size": a mean return above the anchor's with at
-    # most ``leaves`` leaves, a BT of at most ``max_bt_nodes`` nodes and, where published, at
-    # least ``min_share`` of the episodes at or above the task's protocol threshold
-    max_bt_nodes: int | None = None
-    min_share: float | None = None
-
-
-#: MENS-DT-RL (Costa, Custode, Iacca et al., "Evolving interpretable decision trees for
-#: reinforcement learning", Artificial Intelligence, 2024): univariate trees evolved on return.
-ANCHORS = (
-    Anchor("MENS-DT-RL", "LunarLander-v3", nodes=43, leaves=22, mean_return=240.6,
-           std_return=59.8, max_bt_nodes=45, min_share=0.90),
-    Anchor("MENS-DT-RL", "MountainCar-v0", nodes=7, leaves=4, mean_return=-103.3,
-           std_return=None, max_bt_nodes=7),
-    # Kohler et al.'s interpretable-rl-zoo: CART trees distilled by DAgger from the SB3-zoo
-    # PPO expert (KohlerHECTOR/interpretable-rl-zoo), its trees run here on LunarLander-v3 on
-    # 50 episodes each; a CART of L leaves has 2L-1 nodes
-    Anchor("interpretable-rl-zoo CART, run here", "LunarLander-v3", nodes=15, leaves=8,
-           mean_return=17.2, std_return=None),
-    Anchor("interpretable-rl-zoo CART, run here", "LunarLander-v3", nodes=31, leaves=16,
-           mean_return=139.4, std_return=None),
-    Anchor("interpretable-rl-zoo CART, run here", "LunarLander-v3", nodes=63, leaves=32,
-           mean_return=187.8, std_return=132.6),
-)
-
-
 #: The bar of a small BT (the small-BT target: gymnasium's solved score, 200 on LunarLander, from a
 #: BT small enough to read whole; at 12 leaves or fewer) on the anchors' protocol,
 #: per task: every seed's BT at most this many nodes, the mean return over seeds (1,000 final
 #: episodes each) at least this; at larger limits the bar is the task's published anchor at its
-#: own size (:data:`ANCHORS`: above its mean, its share, at most its BT nodes).
+#: own size (:data:`ibt.runs.anchors.DISCRETE`: above its mean, its share, at most its BT nodes).
 #: Each row carries its bar, so the report reads it from the CSV.
 SMALL_BARS: dict[str, dict[str, Any]] = {
     "LunarLander-v3": {"up_to_leaves": 12, "bar_max_bt_nodes": 25, "bar_min_return": 200.0,
@@ -108,7 +73,7 @@ def bar_of(task: str, max_leaves: int) -> dict[str, Any]:
     if small is not None and max_leaves <= small["up_to_leaves"]:
         return {**{k: v for k, v in small.items() if k != "up_to_leaves"},
                 "bar_seeds": BAR_SEEDS}
-    anchor = next((a for a in ANCHORS if a.task == task and a.max_bt_nodes
+    anchor = next((a for a in anchors.DISCRETE if a.task == task and a.max_bt_nodes
                    and a.leaves is not None and max_leaves <= a.leaves), None)
     if anchor is None:
         return dict.fromkeys(("bar_max_bt_nodes", "bar_min_return", "bar_strict",
@@ -306,7 +271,7 @@ def front_table(cfg: Config, points: list[Point], n_jobs: int | None = None) -> 
 def anchor_table(cfg: Config, experts: list[tuple[str, str]]) -> pd.DataFrame:
     """The published anchors on our normalised scale, once per (task, expert) given."""
     rows = []
-    for anchor in ANCHORS:
+    for anchor in anchors.DISCRETE:
         for task, algo in experts:
             if task != anchor.task:
                 continue

@@ -1,7 +1,7 @@
 """The headline BTs, chosen from the committed results (never rerun) and read back from the cache.
 
-For every task with a published small policy to compare with (:data:`ibt.runs.front.ANCHORS`,
-:data:`ibt.runs.continuous.ANCHORS`) or a continuous target (:data:`ibt.runs.continuous.TARGETS`),
+For every task with a published small policy to compare with (:data:`ibt.runs.anchors.DISCRETE`,
+:data:`ibt.runs.anchors.CONTINUOUS`) or a continuous target (:data:`ibt.runs.continuous.TARGETS`),
 two BTs are picked from the committed result tables (``data/results/``):
 
 * the **smallest BT that keeps >= 95 %** of its agent (random-normalised retention; ties: the
@@ -37,13 +37,12 @@ CLOSEST = "closest to 95 % (none reaches it)"
 
 def anchors() -> pd.DataFrame:
     """Every published small policy (source, task, leaves, mean_return), both tables."""
-    from ibt.runs import continuous, front
+    from ibt.runs import anchors as published
 
-    rows = [{"source": a.source, "task": a.task, "leaves": a.leaves, "nodes": a.nodes,
-             "mean_return": a.mean_return} for a in front.ANCHORS if a.leaves is not None]
-    rows += [{"source": s, "task": t, "leaves": n, "nodes": 2 * n - 1, "mean_return": r}
-             for s, t, n, r in continuous.ANCHORS]
-    return pd.DataFrame(rows)
+    return pd.DataFrame([{"source": a.source, "task": a.task, "leaves": a.leaves,
+                          "nodes": a.nodes, "mean_return": a.mean_return}
+                         for a in (*published.DISCRETE, *published.CONTINUOUS)
+                         if a.leaves is not None])
 
 
 def headline_tasks() -> list[str]:
