@@ -251,10 +251,14 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
     assert whole.seeds == (0, 1, 2) and whole.choice_means[0] == cut.choice_means[0]
     # time to spare: rounds go on past `restarts` up to `most`; without a deadline they do not
     _, more = stages.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2, most=5,
-                            next_round=lambda seconds: True)
+                            next_round=lambda seconds: True, enough=math.inf)
     assert more.seeds == (0, 1, 2, 3, 4) and more.choice_means[:3] == whole.choice_means
     _, capped = stages.search(cfg, agent, sources, 4, 0, restarts=3, most=5)
     assert capped.seeds == (0, 1, 2)
+    # ... and stop once a restart reached the target, never before the asked restarts
+    _, reached = stages.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2, most=5,
+                               next_round=lambda seconds: True, enough=-math.inf)
+    assert reached.seeds == (0, 1, 2, 3)
 
 
 @pytest.mark.parametrize("seconds, rungs, most", [(3600.0, (4,), 8), (None, (4,), None),
@@ -270,6 +274,8 @@ def test_only_the_ladders_last_step_spends_spare_time_on_restarts(agents, tmp_pa
 
     def recorded(*args, **kwargs):
         asked.append(kwargs.pop("most"))
+        enough = kwargs.pop("enough")
+        assert (enough is None) == (asked[-1] is None)  # extra restarts stop at the target
         return search(*args, **kwargs)
 
     monkeypatch.setattr(stages, "search", recorded)

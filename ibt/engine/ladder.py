@@ -29,10 +29,9 @@ caller's ``on_step`` callback, and it does not start a step when the longest ste
 so far took longer than the time left (it would run past the budget), nor another round of a
 search's restarts unless twice the last round (the round, then the polish) fits. The last
 search the bisection can make spends the time left over on further restarts (up to
-``EXTRA_RESTARTS`` times the asked number), since nothing after it needs the time; Ctrl-C or
-SIGTERM inside
-a step ends that step unfinished (nothing of it is cached) and the ladder returns what it has,
-marked as stopped. A rerun with a longer deadline resumes from the cache.
+``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target), since nothing
+after it needs the time. Ctrl-C or SIGTERM inside a step ends that step unfinished (nothing of
+it is cached) and the ladder returns what it has, marked as stopped. A rerun with a longer deadline resumes from the cache.
 """
 
 from __future__ import annotations
@@ -99,7 +98,8 @@ class Candidate:
 
 
 #: on the ladder's last search, with a deadline, restarts go on up to this many times the
-#: asked number while another round and the polish fit in the time left
+#: asked number while another round and the polish fit in the time left and none reached the
+#: target
 EXTRA_RESTARTS = 4
 
 
@@ -212,7 +212,8 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     plan = _plan(settings, learners, agent.continuous)
     try:
         if settings.search and not agent.continuous:
-            _search_ladder(out, step, cfg, agent, settings, learners, deadline)
+            target = random_mean + settings.keep * (agent_mean - random_mean)
+            _search_ladder(out, step, cfg, agent, settings, learners, deadline, target)
         else:
             _imitation_ladder(out, step, cfg, agent, settings, learners)
             if agent.continuous:
@@ -245,11 +246,12 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
 
 
 def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
-                   settings: Settings, learners: tuple[str, ...], deadline: Deadline) -> None:
+                   settings: Settings, learners: tuple[str, ...], deadline: Deadline,
+                   target: float) -> None:
     """With the structure search: distil at each rung (smallest first, stopping at the first
     that keeps the target); search the rungs below it (every rung when none kept the target)
     in bisection order; then, where no smaller rung kept the target, refine the trees that
-    kept it (pruning may shrink their BT)."""
+    kept it (pruning may shrink their BT). ``target``: the mean return that keeps it."""
     distilled: dict[int, dict[str, Any]] = {}
     kept = None
     for leaves in settings.rungs:
@@ -271,7 +273,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
     def probe(leaves: int, last: bool = False) -> bool:
         sources = _distinct([distilled[leaves]["axis"], distilled[largest]["axis"]])
         # the ladder's last step (no probe follows, nothing to refine after it) spends the
-        # time left on further restarts
+        # time left on further restarts, until one reaches the target
         final = last and kept is None and deadline.seconds is not None
         most = EXTRA_RESTARTS * settings.restarts if final else None
         step(f"search {learner} at {leaves} leaves", partial(
@@ -280,7 +282,8 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules,
             # another round, then the polish of the winner (measured on LunarLander at 0.6-0.7
             # of a round), must fit in the time left
-            next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most),
+            next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most,
+            enough=target if final else None),
             leaves, "searched", learner)
         info = out.candidates[-1].search
         done = len(info.seeds) if info is not None else settings.restarts

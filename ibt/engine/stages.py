@@ -347,7 +347,7 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
            restarts: int = 1, relational: bool = False, scale: float = 1.0,
            n_jobs: int = 1, env_modules: tuple[str, ...] = (),
            next_round: Callable[[float], bool] | None = None,
-           most: int | None = None) -> tuple[Any, SearchInfo]:
+           most: int | None = None, enough: float | None = None) -> tuple[Any, SearchInfo]:
     """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
     ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes, the
     best polished (CMA-ES on thresholds, then free pruning) and returned.
@@ -356,8 +356,9 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     ``next_round(seconds)``, given the last round's wall time, says whether another round may
     start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
     with more time adds the others from the cache. With ``next_round``, rounds go on past
-    ``restarts`` up to ``most`` seeds while it allows (time left over is spent on restarts);
-    each round runs at most ``n_jobs`` seeds."""
+    ``restarts`` up to ``most`` seeds while it allows (time left over is spent on restarts)
+    and no restart's choice mean has reached ``enough`` (the target); each round runs at most
+    ``n_jobs`` seeds."""
     from ibt.engine.parallel import parallel_map
     from ibt.evaluate.policies import TreePolicy
     from ibt.refine.relational import best_tree
@@ -367,30 +368,39 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     most = restarts if next_round is None else max(restarts, most or restarts)
     quiet = replace(cfg, progress=cfg.progress and most == 1)
     width = max(1, min(n_jobs, most))
-    records: list[Any] = []
-    while len(records) < most:
-        batch = range(seed + len(records), seed + min(most, len(records) + width))
-        began = time.monotonic()
-        records += parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
-                                              env_modules) for s in batch], n_jobs=n_jobs)
-        if next_round is not None and not next_round(time.monotonic() - began):
-            break
-    seeds = tuple(seed + r for r in range(len(records)))
-    if relational:
-        from ibt.refine.relational_structure import winner
-
-        trees = [winner(record) for record in records]
-    else:
-        trees = [record.best_tree for record in records]
     choice = selection_seeds(config.selection_episodes, seed, offset=RESTART_CHOICE_OFFSET)
-    means = tuple(returns_of(cfg, task, {"tree": tree_key(t)},
-                             lambda t=t: TreePolicy(task, t).act, choice).mean
-                  for t in trees)
+    trees: list[Any] = []
+    means: list[float] = []
+    while len(trees) < most:
+        batch = range(seed + len(trees), seed + min(most, len(trees) + width))
+        began = time.monotonic()
+        records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
+                                             env_modules) for s in batch], n_jobs=n_jobs)
+        seconds = time.monotonic() - began
+        for record in records:
+            tree = _restart_winner(record, relational)
+            trees.append(tree)
+            means.append(returns_of(cfg, task, {"tree": tree_key(tree)},
+                                    lambda t=tree: TreePolicy(task, t).act, choice).mean)
+        if next_round is not None and not next_round(seconds):
+            break
+        if len(trees) >= restarts and enough is not None and max(means) >= enough:
+            break
+    seeds = tuple(seed + r for r in range(len(trees)))
     chosen = max(range(len(trees)), key=lambda i: (means[i], -leaves_of(trees[i]), -i))
     polish = refinement_cached(cfg, task, agent.algo, seeds[chosen],
                                SEARCHED_REL if relational else SEARCHED, trees[chosen],
                                budgets.polish_config(cfg, config))
-    return best_tree(polish), SearchInfo(seeds, len(choice), means, chosen)
+    return best_tree(polish), SearchInfo(seeds, len(choice), tuple(means), chosen)
+
+
+def _restart_winner(record: Any, relational: bool) -> Any:
+    """A restart's best tree (a relational search's winner reads its relational record)."""
+    if relational:
+        from ibt.refine.relational_structure import winner
+
+        return winner(record)
+    return record.best_tree
 
 
 # --- measure ----------------------------------------------------------------------------------
