@@ -31,7 +31,8 @@ search's restarts unless twice the last round (the round, then the polish) fits.
 search the bisection can make spends the time left over on further restarts (up to
 ``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target), since nothing
 after it needs the time. Ctrl-C or SIGTERM inside a step ends that step unfinished (nothing of
-it is cached) and the ladder returns what it has, marked as stopped. A rerun with a longer deadline resumes from the cache.
+it is cached) and the ladder returns what it has, marked as stopped. A rerun with a longer
+deadline resumes from the cache.
 """
 
 from __future__ import annotations
