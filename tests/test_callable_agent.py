@@ -327,7 +327,7 @@ def test_the_structure_search_takes_a_callable_agent_as_its_expert(tmp_path):
     agent = load_callable_agent(CARTPOLE, f"{write(tmp_path, source)}:act")
     x = np.random.default_rng(0).normal(scale=0.1, size=(200, 4)).astype(np.float32)
     mutator = TreeMutator(CARTPOLE, EvolveConfig(max_leaves=4, leaf_rule="score"),
-                       np.random.default_rng(0), agent)
+                          np.random.default_rng(0), agent)
     mutator.refresh(x)
     assert mutator.scores.shape == (200, 2)
     assert np.array_equal(mutator.labels, agent.act(CARTPOLE.observations(mutator.pool)))

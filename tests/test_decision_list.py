@@ -22,8 +22,8 @@ from ibt.synth.decision_list_search import (
     CandidateSearch,
     EspressoBudget,
     Leaf,
-    leaf_paths,
     tree_view,
+    view_paths,
 )
 from ibt.synth.imitation import imitation_bt, verify
 from ibt.synth.rules import Literal, leaf_witnesses
@@ -160,7 +160,7 @@ def test_decides_like_is_exact_where_sampling_is_not():
 def test_simplify_and_factoring_keep_every_decision():
     tree = random_tree(7, 30, 4)
     view = tree_view(tree)
-    leaves = [(term_box(t, N_FEATURES), a) for t, a in leaf_paths(view)]
+    leaves = [(term_box(t, N_FEATURES), a) for t, a in view_paths(view)]
     search = CandidateSearch(view, EspressoBudget(MAX_WORK, 60))
     flat = search.tree_shaped()
     assert decides_like(flat, leaves)

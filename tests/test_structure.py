@@ -47,7 +47,7 @@ def test_nested_round_trip_and_mutations_keep_the_limit(tree_seed, leaves, mutat
     x = np.random.default_rng(0).normal(size=(300, 4)).astype(np.float32)
     assert np.array_equal(arrays(nested(tree), 4, 2).predict(x), tree.predict(x))
     mutator = TreeMutator(task, EvolveConfig(max_leaves=leaves, use_expert=False),
-                       np.random.default_rng(mutation_seed), None)
+                          np.random.default_rng(mutation_seed), None)
     mutator.refresh(x)
     root = nested(tree)
     for _ in range(20):
@@ -111,7 +111,7 @@ def test_the_score_leaf_rule_picks_the_best_mean_score_where_the_vote_picks_the_
     picked = {}
     for rule in ("vote", "score"):
         mutator = TreeMutator(task, EvolveConfig(max_leaves=4, leaf_rule=rule),
-                           np.random.default_rng(0), _ScoredExpert())
+                              np.random.default_rng(0), _ScoredExpert())
         mutator.refresh(x)
         picked[rule] = mutator._leaf_action(np.ones(len(mutator.pool), dtype=bool))
     # Expect: the majority label (0) by vote; the action of the highest mean score (1) by score

@@ -347,7 +347,7 @@ def _leaf_stage(arrays: TreeArrays, config: RefineConfig, episodes: RefineEpisod
 
 
 def prune_stage(arrays: TreeArrays, config: RefineConfig, episodes: RefineEpisodes,
-                 optional: bool = True) -> tuple[TreeArrays, dict]:
+                optional: bool = True) -> tuple[TreeArrays, dict]:
     """Cut subtrees: down to ``max_leaves`` by least loss, then (``optional``) while a cut
     costs nothing."""
     forced_cuts = cuts = 0

@@ -83,7 +83,7 @@ def interval_caption(frame: pd.DataFrame, what: str = "error bars") -> str:
     return f"{what}: 95 % percentile-bootstrap CI of the mean over seeds"
 
 
-def expert_statuses(frame: pd.DataFrame) -> dict[tuple[str, str], str]:
+def flagged_experts(frame: pd.DataFrame) -> dict[tuple[str, str], str]:
     """``(task, expert) -> status`` for experts that are not ``ok`` (when the column exists)."""
     if "expert_status" not in frame:
         return {}

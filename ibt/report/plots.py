@@ -26,7 +26,7 @@ from ibt.report.figure_style import (
     GREY,
     OKABE_ITO,
     SAVE_DPI,
-    expert_statuses,
+    flagged_experts,
     interval_caption,
     interval_columns,
     mark_status,
@@ -145,7 +145,7 @@ def retention_grid(summary: pd.DataFrame, value: str = "retention_norm",
     experts += sorted(set(summary["expert"]) - set(experts))
     tasks = list(dict.fromkeys(summary["task"]))
     methods = methods_in(summary)
-    statuses = expert_statuses(summary)
+    statuses = flagged_experts(summary)
     fig, axes = plt.subplots(len(experts), 1, figsize=(FIG_WIDTH, 2.3 * len(experts) + 0.6),
                              squeeze=False, sharex=True)
     width = 0.84 / len(methods)
@@ -270,7 +270,7 @@ def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figu
     experts += sorted(set(frame["expert"]) - set(experts))
     tasks = list(dict.fromkeys(frame["task"]))
     methods = methods_in(frame)
-    statuses = expert_statuses(frame)
+    statuses = flagged_experts(frame)
     fig, axes = plt.subplots(len(experts), 1, figsize=(FIG_WIDTH, 2.2 * len(experts) + 0.6),
                              squeeze=False, sharex=True, sharey=True)
     width = 0.84 / len(methods)
@@ -290,8 +290,8 @@ def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figu
     fig.legend(handles, labels, ncol=min(4, len(methods)), loc="lower center",
                bbox_to_anchor=(0.5, 1.0), frameon=False)
     fig.text(0.5, 0.0, wrap_text("Mean over seeds: decision-tree nodes for BC, DAgger and VIPER; "
-                             "BT nodes (every node) for the BT methods. BT-Espresso and "
-                             "RE:BT-Espresso are built from the BC tree.", 110),
+                                 "BT nodes (every node) for the BT methods. BT-Espresso and "
+                                 "RE:BT-Espresso are built from the BC tree.", 110),
              ha="center", va="top", fontsize=9)
     fig.tight_layout()
     if path is not None:
@@ -355,8 +355,8 @@ def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
         ax.set_ylabel("retention (%, random-norm.)")
     axes[0, 0].legend(loc="lower right")
     fig.text(0.5, 0.0, wrap_text(f"A point per leaf limit: mean over seeds; "
-                             f"{interval_caption(frame)}. Dotted: the expert (100 %); "
-                             "dashed: 98 %.", 100), ha="center", va="top", fontsize=9)
+                                 f"{interval_caption(frame)}. Dotted: the expert (100 %); "
+                                 "dashed: 98 %.", 100), ha="center", va="top", fontsize=9)
     fig.tight_layout()
     if path is not None:
         save_figure(fig, path)

@@ -57,14 +57,14 @@ from sklearn.tree import DecisionTreeClassifier
 
 from ibt.bt.model import BehaviorTree, Node, iterate
 from ibt.synth.decision_list_exact import Entry, SearchTimeout, decides_like, simplify, term_box
-from ibt.synth.decision_list_factoring import compose, guarded_action, root_selector
+from ibt.synth.decision_list_factoring import compose_node, guarded_action, root_selector
 from ibt.synth.decision_list_search import (
     CandidateSearch,
     EspressoBudget,
     Split,
     condition_count,
-    leaf_paths,
     tree_view,
+    view_paths,
 )
 from ibt.synth.imitation import RuleSet, Synthesis, imitation_bt, verify
 from ibt.synth.rules import Term
@@ -102,7 +102,7 @@ def decision_list_bt(tree: DecisionTreeClassifier, task: Task, *, time_limit: fl
         return relational.synthesise(decision_list_bt, tree, task, time_limit=time_limit,
                                      max_work=max_work, check=check, rng_seed=rng_seed)
     view = tree_view(tree)
-    tested = [lit.feature for term, _ in leaf_paths(view) for lit in term]
+    tested = [lit.feature for term, _ in view_paths(view) for lit in term]
     if tested and max(tested) >= task.n_features:
         raise ValueError(f"the tree tests feature {max(tested)}, but task {task.name} has "
                          f"{task.n_features} features; synthesise with the task it was fitted on")
@@ -133,7 +133,8 @@ def decision_list_bt(tree: DecisionTreeClassifier, task: Task, *, time_limit: fl
             root = root_selector(search.factorer(entries))
         except SearchTimeout:  # the safety net: this candidate as its flat (exact) list
             stopped = True
-            root = root_selector(compose("fb", [guarded_action([t], a, {}) for t, a in entries]))
+            root = root_selector(compose_node(
+                "fb", [guarded_action([t], a, {}) for t, a in entries]))
         key = (_size(root), condition_count(entries))
         sizes[name] = min(sizes.get(name, key[0]), key[0])
         if best is None or key < best[0]:

@@ -40,7 +40,7 @@ def _act(action: int) -> _N:
     return _N("act", (action,), 1)
 
 
-def compose(kind: str, children: list[_N] | tuple[_N, ...]) -> _N:
+def compose_node(kind: str, children: list[_N] | tuple[_N, ...]) -> _N:
     """A ``kind`` node of ``children``, flattening children of the same kind (one child: itself)."""
     flat: list[_N] = []
     for child in children:
@@ -55,7 +55,7 @@ def _or_node(terms: frozenset[Term], memo: dict) -> _N:
     if terms in memo:
         return memo[terms]
     ordered = sorted(terms)
-    best = compose("fb", [compose("seq", [_cond(x) for x in t]) for t in ordered])
+    best = compose_node("fb", [compose_node("seq", [_cond(x) for x in t]) for t in ordered])
     counts: dict[Literal, int] = {}
     for t in ordered:
         for lit in t:
@@ -64,9 +64,9 @@ def _or_node(terms: frozenset[Term], memo: dict) -> _N:
     for lit in shared[: OR_BRANCHING if len(terms) <= OR_BRANCHING_TERMS else 1]:
         inner = frozenset(tuple(x for x in t if x != lit) for t in terms if lit in t)
         others = frozenset(t for t in terms if lit not in t)
-        head = _cond(lit) if () in inner else compose("seq", [_cond(lit),
-                                                              _or_node(inner, memo)])
-        node = compose("fb", [head, _or_node(others, memo)]) if others else head
+        head = _cond(lit) if () in inner else compose_node("seq", [_cond(lit),
+                                                                   _or_node(inner, memo)])
+        node = compose_node("fb", [head, _or_node(others, memo)]) if others else head
         if node.size < best.size:
             best = node
     memo[terms] = best
@@ -77,7 +77,7 @@ def guarded_action(terms: list[Term], action: int, memo: dict) -> _N:
     """``Sequence(OR of terms, action)``, the OR factored; just the action if a term is empty."""
     if any(not t for t in terms):
         return _act(action)
-    return compose("seq", [_or_node(frozenset(terms), memo), _act(action)])
+    return compose_node("seq", [_or_node(frozenset(terms), memo), _act(action)])
 
 
 class Factorer:
@@ -97,7 +97,7 @@ class Factorer:
         self.guard_memo: dict = {}
 
     def __call__(self, entries: list[Entry]) -> _N:
-        return compose("fb", self._solve(tuple(entries)))
+        return compose_node("fb", self._solve(tuple(entries)))
 
     def size(self, entries: list[Entry]) -> int:
         return self(entries).size
@@ -132,7 +132,7 @@ class Factorer:
                 for lit in sorted(common):
                     inner = self._solve(tuple((tuple(x for x in t if x != lit), a)
                                               for t, a in es[i:j + 1]))
-                    node = compose("seq", [_cond(lit), compose("fb", inner)])
+                    node = compose_node("seq", [_cond(lit), compose_node("fb", inner)])
                     options.append((node.size + rest[0], (node, *rest[1])))
             best[i] = min(options, key=lambda o: o[0])
         self.memo[es] = best[0][1]

@@ -79,16 +79,16 @@ def tree_view(tree: DecisionTreeClassifier) -> _View:
     return build(0)
 
 
-def leaf_paths(view: _View, prefix: Term = ()) -> list[Entry]:
+def view_paths(view: _View, prefix: Term = ()) -> list[Entry]:
     """Every leaf of ``view`` as (path below the view's root, action), left before right."""
     if isinstance(view, Leaf):
         return [(prefix, view.action)]
-    return (leaf_paths(view.left, (*prefix, view.literal))
-            + leaf_paths(view.right, (*prefix, view.literal.negated())))
+    return (view_paths(view.left, (*prefix, view.literal))
+            + view_paths(view.right, (*prefix, view.literal.negated())))
 
 
 def _actions(view: _View) -> tuple[int, ...]:
-    return tuple(sorted({a for _, a in leaf_paths(view)}))
+    return tuple(sorted({a for _, a in view_paths(view)}))
 
 
 class EspressoBudget:
@@ -141,7 +141,7 @@ class CandidateSearch:
 
     def __init__(self, view: _View, budget: EspressoBudget) -> None:
         self.view = view
-        self.paths = leaf_paths(view)
+        self.paths = view_paths(view)
         self.variables = Variables(t for t, _ in self.paths)
         self.budget = budget
         self.factorer = Factorer(budget.deadline)
@@ -184,7 +184,7 @@ class CandidateSearch:
         """The variables of a region (its paths' and its context's tests) and how many
         implication don't-cares they have."""
         if context not in self.local:  # a context (root-to-subtree path) names its region
-            paths = leaf_paths(self._subtree(context))
+            paths = view_paths(self._subtree(context))
             variables = Variables([*(t for t, _ in paths), context])
             self.local[context] = (variables, len(variables.implication_dont_cares()))
         return self.local[context]
@@ -265,7 +265,7 @@ class CandidateSearch:
         options = []
         for left, right in itertools.product(lefts, rights):
             options += [_prefix(lit, left) + right, _prefix(lit.negated(), right) + left]
-        dl = self.best_list(leaf_paths(view), context)
+        dl = self.best_list(view_paths(view), context)
         if dl is not None:
             options.append(dl)
         ranked: list[list[Entry]] = []

@@ -81,7 +81,7 @@ def lookup_config(cfg: Config) -> Config:
     from ibt.profiles import paper_settings
 
     paper = {k: v for k, v in paper_settings().items() if k not in ("data_dir", "figures_dir",
-                                                            "paper_dir")}
+                                                                    "paper_dir")}
     return replace(cfg, profile="paper", **{**paper, "progress": False, "refresh": False})
 
 
