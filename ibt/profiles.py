@@ -50,7 +50,8 @@ class Config:
         return self.profile == "paper"
 
 
-def _paper(**kw: Any) -> dict[str, Any]:
+def paper_settings(**kw: Any) -> dict[str, Any]:
+    """The ``paper`` profile's settings (committed folders, full budgets), ``kw`` overriding."""
     return {"cache_dir": DATA_DIR / "cache", "data_dir": DATA_DIR,
             "experts_dir": DATA_DIR / "experts", "figures_dir": FIGURES_DIR,
             "paper_dir": PAPER_DIR, "n_iterations": 50, "labels_scale": 1.0,
@@ -94,7 +95,7 @@ def config(profile: str | None = None, **overrides: Any) -> Config:
                            for u, h in zip(unknown, hints, strict=True))
         raise TypeError(f"unknown parameter {detail}; known parameters: "
                         f"{', '.join(sorted(names))}")
-    values = (_paper if profile == "paper" else _smoke)()
+    values = (paper_settings if profile == "paper" else _smoke)()
     values["refresh"] = os.environ.get("IBT_REFRESH", "") == "1"
     if os.environ.get("IBT_CACHE_DIR"):  # `make reproduce`: a fresh cache, resumable
         values["cache_dir"] = os.environ["IBT_CACHE_DIR"]

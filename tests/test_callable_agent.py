@@ -320,14 +320,14 @@ def test_box_distillation_of_a_controller_imitates_it(tmp_path):
 
 def test_the_structure_search_takes_a_callable_agent_as_its_expert(tmp_path):
     from ibt.refine.structure import evolve
-    from ibt.refine.structure_mutations import _Mutator
+    from ibt.refine.structure_mutations import TreeMutator
     from ibt.tasks.settings import EvolveConfig
 
     source = RULE + "act.q_values = lambda obs: [0.0, obs[2] + 0.1 * obs[3]]\n"
     agent = load_callable_agent(CARTPOLE, f"{write(tmp_path, source)}:act")
     x = np.random.default_rng(0).normal(scale=0.1, size=(200, 4)).astype(np.float32)
-    mutator = _Mutator(CARTPOLE, EvolveConfig(max_leaves=4, leaf_rule="score"),
-                       np.random.default_rng(0), agent)
+    mutator = TreeMutator(CARTPOLE, EvolveConfig(max_leaves=4, leaf_rule="score"),
+                          np.random.default_rng(0), agent)
     mutator.refresh(x)
     assert mutator.scores.shape == (200, 2)
     assert np.array_equal(mutator.labels, agent.act(CARTPOLE.observations(mutator.pool)))

@@ -16,9 +16,15 @@ from sklearn.tree import DecisionTreeClassifier
 from ibt.bt.executors import decide_batch
 from ibt.bt.model import Action, Selector, iterate
 from ibt.synth.decision_list import MAX_WORK, METHOD, decision_list_bt, size_table
-from ibt.synth.decision_list_exact import _box, decides_like, simplify
-from ibt.synth.decision_list_factoring import Factorer, _root
-from ibt.synth.decision_list_search import _Budget, _Leaf, _paths, _Search, _view
+from ibt.synth.decision_list_exact import decides_like, simplify, term_box
+from ibt.synth.decision_list_factoring import Factorer, root_selector
+from ibt.synth.decision_list_search import (
+    CandidateSearch,
+    EspressoBudget,
+    Leaf,
+    tree_view,
+    view_paths,
+)
 from ibt.synth.imitation import imitation_bt, verify
 from ibt.synth.rules import Literal, leaf_witnesses
 from ibt.tasks.catalogue import Task
@@ -90,12 +96,12 @@ def test_search_never_returns_more_than_the_papers_ordering(seed, leaves, n_acti
     paper = imitation_bt(tree, TOY)
     assert result.bt.node_count <= paper.bt.node_count
     # the decision list in the paper's action order, simplified and factored, is one candidate
-    view = _view(tree)
-    if not isinstance(view, _Leaf):
-        search = _Search(view, _Budget(FAST["max_work"], 60))
-        boxes = [(_box(t, N_FEATURES), a) for t, a in search.paths]
+    view = tree_view(tree)
+    if not isinstance(view, Leaf):
+        search = CandidateSearch(view, EspressoBudget(FAST["max_work"], 60))
+        boxes = [(term_box(t, N_FEATURES), a) for t, a in search.paths]
         paper_order = simplify(search.paper_order(tree), boxes)
-        size = sum(1 for _ in iterate(_root(search.factorer(paper_order))))
+        size = sum(1 for _ in iterate(root_selector(search.factorer(paper_order))))
         assert result.bt.node_count <= size
     assert result.bt.node_count == min(result.search["candidates"].values())
 
@@ -142,7 +148,8 @@ def test_same_tree_gives_the_identical_bt_json():
 
 def test_decides_like_is_exact_where_sampling_is_not():
     # Expect: a list that errs only on the float32 value just above a threshold is caught
-    leaves = [(_box((Literal(0, 0.5, True),), 2), 0), (_box((Literal(0, 0.5, False),), 2), 1)]
+    leaves = [(term_box((Literal(0, 0.5, True),), 2), 0),
+              (term_box((Literal(0, 0.5, False),), 2), 1)]
     exact = [((Literal(0, 0.5, True),), 0), ((), 1)]
     off = [((Literal(0, 0.5000001, True),), 0), ((), 1)]
     assert decides_like(exact, leaves)
@@ -152,15 +159,15 @@ def test_decides_like_is_exact_where_sampling_is_not():
 
 def test_simplify_and_factoring_keep_every_decision():
     tree = random_tree(7, 30, 4)
-    view = _view(tree)
-    leaves = [(_box(t, N_FEATURES), a) for t, a in _paths(view)]
-    search = _Search(view, _Budget(MAX_WORK, 60))
+    view = tree_view(tree)
+    leaves = [(term_box(t, N_FEATURES), a) for t, a in view_paths(view)]
+    search = CandidateSearch(view, EspressoBudget(MAX_WORK, 60))
     flat = search.tree_shaped()
     assert decides_like(flat, leaves)
     short = simplify(flat, leaves)
     assert decides_like(short, leaves)
     assert sum(map(len, (t for t, _ in short))) <= sum(map(len, (t for t, _ in flat)))
-    root = _root(Factorer()(short))
+    root = root_selector(Factorer()(short))
     states = probe_states(tree, 7)
     assert np.array_equal(decide_batch(root, states), tree.predict(states))
 

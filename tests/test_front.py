@@ -119,13 +119,13 @@ def test_front_axes_have_plain_few_ticks():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ibt.report.figure_style import _plain_log_ticks
+    from ibt.report.figure_style import plain_log_ticks
 
     for low, high in [(4, 500), (38, 49), (5, 11), (2, 30)]:
         fig, ax = plt.subplots()
         ax.plot([low, high], [0, 1])
         ax.set_xscale("log")
-        _plain_log_ticks(ax)
+        plain_log_ticks(ax)
         ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
         labels = [ax.xaxis.get_major_formatter()(t) for t in ticks]
         assert 3 <= len(ticks) <= 6, (low, high, ticks)

@@ -65,12 +65,12 @@ def test_the_lead_bt_file_is_the_one_its_1000_episodes_evaluated():
     # Expect: the LunarLander BT written under figures/headline/ has the digest of the protocol
     # cache entry whose mean return and share the CSV reports
     from ibt.bt.json_io import load_json
-    from ibt.runs.grid import _bt_digest
+    from ibt.engine.stages import bt_digest
 
     row = pd.read_csv(RESULTS / "headline.csv").query("task == 'LunarLander-v3'").iloc[0]
     bt = load_json(ROOT / row.json_file)
     assert bt.node_count == row.bt_nodes
-    digest = _bt_digest(bt)
+    digest = bt_digest(bt)
     entries = [json.loads((d / "payload.json").read_text())
                for d in (ROOT / "data" / "cache" / "protocol").iterdir()
                if json.loads((d / "manifest.json").read_text())["params"]["bt"] == digest]

@@ -14,7 +14,7 @@ from sklearn.tree import DecisionTreeClassifier
 import ibt
 from ibt.refine.forest import Forest
 from ibt.refine.structure import evolve, reselect
-from ibt.refine.structure_mutations import _Mutator, arrays, nested
+from ibt.refine.structure_mutations import TreeMutator, arrays, nested
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import EvolveConfig
 
@@ -46,8 +46,8 @@ def test_nested_round_trip_and_mutations_keep_the_limit(tree_seed, leaves, mutat
     tree = _tree(tree_seed, leaves, n_features=4, n_actions=2)
     x = np.random.default_rng(0).normal(size=(300, 4)).astype(np.float32)
     assert np.array_equal(arrays(nested(tree), 4, 2).predict(x), tree.predict(x))
-    mutator = _Mutator(task, EvolveConfig(max_leaves=leaves, use_expert=False),
-                       np.random.default_rng(mutation_seed), None)
+    mutator = TreeMutator(task, EvolveConfig(max_leaves=leaves, use_expert=False),
+                          np.random.default_rng(mutation_seed), None)
     mutator.refresh(x)
     root = nested(tree)
     for _ in range(20):
@@ -110,8 +110,8 @@ def test_the_score_leaf_rule_picks_the_best_mean_score_where_the_vote_picks_the_
     assert 0.05 < (x[:, 0] > 1.0).mean() < 0.3  # a minority prefers action 1, strongly
     picked = {}
     for rule in ("vote", "score"):
-        mutator = _Mutator(task, EvolveConfig(max_leaves=4, leaf_rule=rule),
-                           np.random.default_rng(0), _ScoredExpert())
+        mutator = TreeMutator(task, EvolveConfig(max_leaves=4, leaf_rule=rule),
+                              np.random.default_rng(0), _ScoredExpert())
         mutator.refresh(x)
         picked[rule] = mutator._leaf_action(np.ones(len(mutator.pool), dtype=bool))
     # Expect: the majority label (0) by vote; the action of the highest mean score (1) by score

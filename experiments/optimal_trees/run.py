@@ -41,7 +41,7 @@ from ibt.distill.loop import ClassifierLearner, interactive_loop
 from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import final_seeds, rollout
 from ibt.profiles import config as profile_config
-from ibt.refine.tree_arrays import TreeArrays, _from_nested
+from ibt.refine.tree_arrays import TreeArrays, tree_arrays_from_nested
 from ibt.tasks.catalogue import get_task
 
 TASK = "LunarLander-v3"
@@ -138,7 +138,7 @@ def contree_to_sklearn(model: Any, x: np.ndarray, n_actions: int) -> DecisionTre
                 build(node.get_right(), rows & ~go_left), float(rows.sum()))
 
     nested = build(model.get_tree(), np.ones(len(x), dtype=bool))
-    return _from_nested(nested, x.shape[1], n_actions).to_sklearn()
+    return tree_arrays_from_nested(nested, x.shape[1], n_actions).to_sklearn()
 
 
 def weighted_accuracy(tree: DecisionTreeClassifier, x: np.ndarray, y: np.ndarray,

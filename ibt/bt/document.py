@@ -28,7 +28,7 @@ from ibt.bt.model import (
     Node,
     Selector,
     Sequence,
-    _names,
+    checked_names,
 )
 
 FORMAT = "ibt-behavior-tree/1"
@@ -106,7 +106,7 @@ def tree_from_dict(cls: type[BehaviorTree], doc: Any) -> BehaviorTree:
         raise ValueError("its tick_rule is not the rule this version ticks by (a BT "
                          "written for other semantics would not decide as its author meant);"
                          " remove the key or write the BT with this version")
-    names = _names(doc["feature_names"], "feature_names")
+    names = checked_names(doc["feature_names"], "feature_names")
     labels_doc = doc.get("value_labels", {})
     if not isinstance(labels_doc, dict):
         raise ValueError("value_labels must map feature names to lists of labels")
@@ -115,8 +115,9 @@ def tree_from_dict(cls: type[BehaviorTree], doc: Any) -> BehaviorTree:
         if feature not in names:
             raise ValueError(f"value_labels names the feature {feature!r:.60}, which is not in "
                              "feature_names")
-        labels.append((names.index(feature), _names(values, f"value_labels[{feature!r:.60}]")))
-    action_names = _names(doc["action_names"], "action_names")
+        labels.append((names.index(feature),
+                       checked_names(values, f"value_labels[{feature!r:.60}]")))
+    action_names = checked_names(doc["action_names"], "action_names")
     commands = (Commands.from_dict(doc["commands"], len(action_names))
                 if "commands" in doc else None)
     tree = cls(root=node_from_dict(doc["root"]), feature_names=names,

@@ -218,7 +218,7 @@ class Commands:
         if not isinstance(doc, dict) or set(doc) != {"dimensions", "units", "values"}:
             raise ValueError("commands must be an object with exactly 'dimensions', 'units' "
                              "and 'values'")
-        dims = _names(doc["dimensions"], "commands.dimensions")
+        dims = checked_names(doc["dimensions"], "commands.dimensions")
         units = doc["units"]
         if not isinstance(units, list) or len(units) != len(dims) or not all(
                 isinstance(u, str) for u in units):
@@ -367,7 +367,7 @@ class BehaviorTree:
                              "action, or make the guards cover every state")
 
 
-def _names(values: Any, what: str) -> tuple[str, ...]:
+def checked_names(values: Any, what: str) -> tuple[str, ...]:
     """A non-empty list of distinct non-empty strings, as a tuple."""
     if (not isinstance(values, list) or not values
             or not all(isinstance(v, str) and v for v in values)):

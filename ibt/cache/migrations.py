@@ -33,7 +33,7 @@ from ibt.cache.store import (
     manifest_text,
     payload_digest,
 )
-from ibt.cache.upkeep import _manifest, entries
+from ibt.cache.upkeep import entries, read_manifest
 from ibt.files import atomic_write_bytes, atomic_write_text
 
 # --- the one-off migration of 2026-11 ---------------------------------------------------------
@@ -83,7 +83,7 @@ def signature_map(cache_dir: str | Path, report: Migration) -> dict[tuple[str, s
     for entry in entries(cache_dir):
         if entry.kind != "distill" or entry.status in ("incomplete", "orphan"):
             continue
-        manifest = _manifest(entry.path) or {}
+        manifest = read_manifest(entry.path) or {}
         if manifest.get("codec") not in payloads.CODECS:  # a pickle: migrate-plain it first
             report.refused.append((entry.name, f"codec {manifest.get('codec')!r}: its trees "
                                    "were not read (run migrate-plain first)"))
@@ -134,7 +134,7 @@ def migrate(cache_dir: str | Path, *, dry_run: bool = False) -> Migration:
     signatures = signature_map(cache_dir, report)
     now = key_packages()
     for entry in list(entries(cache_dir)):
-        manifest = _manifest(entry.path)
+        manifest = read_manifest(entry.path)
         if entry.status == "current":
             report.already_current += 1
             continue
@@ -338,7 +338,7 @@ def migrate_plain(cache_dir: str | Path, *, dry_run: bool = False, progress: boo
                for p in sorted(kind.iterdir()) if p.is_dir()]
     for path in tqdm(folders, desc="migrate-plain", unit="entry", disable=not progress):
         kind, name = path.parent.name, f"{path.parent.name}/{path.name}"
-        manifest = _manifest(path)
+        manifest = read_manifest(path)
         if manifest is None:
             report.refused.append((name, "no readable manifest"))
             continue

@@ -61,7 +61,8 @@ class Entry:
         return f"{self.kind}/{self.key}"
 
 
-def _manifest(path: Path) -> dict[str, Any] | None:
+def read_manifest(path: Path) -> dict[str, Any] | None:
+    """The entry folder's ``manifest.json`` as a dict; None if missing, unreadable or no object."""
     try:
         manifest = json.loads((path / "manifest.json").read_text())
     except (OSError, ValueError):
@@ -76,7 +77,7 @@ def _payloads(path: Path) -> list[Path]:
 def classify(path: Path) -> Entry:
     """The status of the entry in folder ``path`` (see the module docstring)."""
     kind = path.parent.name
-    manifest = _manifest(path)
+    manifest = read_manifest(path)
     if not _payloads(path):
         return Entry(path, kind, "incomplete", "no payload")
     if manifest is None:
@@ -189,7 +190,7 @@ def verify(cache_dir: str | Path) -> list[Entry]:
 
     out = []
     for entry in entries(cache_dir):
-        manifest = _manifest(entry.path)
+        manifest = read_manifest(entry.path)
         if manifest is None or entry.status == "incomplete":
             continue
         if manifest.get("codec") not in payloads.CODECS:

@@ -13,16 +13,16 @@ from typing import Any
 from ibt.cli.checks import (
     EXPORT_SUFFIXES,
     UsageError,
-    _again,
-    _bt_hint,
-    _load_bt,
-    _read_json,
-    _tree_task,
+    bt_file_hint,
     check_input,
     check_output,
+    load_bt_file,
     load_tree_file,
     read_input,
+    read_json_input,
+    rerun_command,
     task_for,
+    tree_file_task,
 )
 from ibt.tasks.settings import ALGOS
 
@@ -44,14 +44,14 @@ def _load_policy(path: Path, args: argparse.Namespace):
         if path.suffix.lower() != ".json" and not path.exists():
             raise UsageError(f"{path}: expected a BT (.json), a decision-tree file (.json) or "
                              f"an expert ({', '.join(ALGOS)})")
-        doc = _read_json(path, "BT or decision-tree file", _bt_hint(path))
+        doc = read_json_input(path, "BT or decision-tree file", bt_file_hint(path))
     if doc is not None and not (isinstance(doc, dict) and doc.get("format") == TREE_FORMAT):
-        bt = _load_bt(path, doc)
+        bt = load_bt_file(path, doc)
         if args.task is None:
             known = _matching_tasks(bt)
             if len(known) == 1:
                 raise UsageError(f"a BT file does not name its task; its names are "
-                                 f"{known[0]}'s: run `{_again(args, '--task', known[0])}`")
+                                 f"{known[0]}'s: run `{rerun_command(args, '--task', known[0])}`")
             raise UsageError("a BT file does not name its task; pass --task with the "
                              "environment it was made for")
         task = task_for(args, args.task)
@@ -61,7 +61,7 @@ def _load_policy(path: Path, args: argparse.Namespace):
             wants = ("continuous actions (a Box), whose BTs send commands" if task.continuous
                      else f"discrete actions ({', '.join(task.action_names)})")
             known = _matching_tasks(bt)
-            fix = (f"run `{_again(args, '--task', known[0])}`" if len(known) == 1
+            fix = (f"run `{rerun_command(args, '--task', known[0])}`" if len(known) == 1
                    else "pass the task the BT was made for")
             raise UsageError(f"{path} {has}, but {task.name} has {wants}; {fix}")
         if bt.commands is not None:  # continuous actions: a BT with commands
@@ -73,7 +73,7 @@ def _load_policy(path: Path, args: argparse.Namespace):
                 raise UsageError(f"{path}: {err}") from None
         if (bt.feature_names, bt.action_names) != (task.feature_names, task.action_names):
             known = _matching_tasks(bt)
-            fix = (f"run `{_again(args, '--task', known[0])}`" if len(known) == 1
+            fix = (f"run `{rerun_command(args, '--task', known[0])}`" if len(known) == 1
                    else "pass the task the BT was made for")
             raise UsageError(f"{path} reads {', '.join(bt.feature_names)} and acts "
                              f"{', '.join(bt.action_names)}, but {task.name} has "
@@ -81,7 +81,7 @@ def _load_policy(path: Path, args: argparse.Namespace):
                              f"{', '.join(task.action_names)}; {fix}")
         return task, BTPolicy(task, bt)
     doc = load_tree_file(path, args)
-    task = _tree_task(doc, path, args)
+    task = tree_file_task(doc, path, args)
     if args.task is not None and resolve_task(args.task).name != task.name:
         raise UsageError(f"{path} was distilled on {task.name}, not {args.task}; drop --task "
                          f"or pass --task {task.name}")
@@ -103,14 +103,15 @@ class _Act:
         self.act = act
 
 
-def _evaluate(args: argparse.Namespace) -> int:
+def evaluate_command(args: argparse.Namespace) -> int:
+    """The ``evaluate`` command: the returns of a BT, a decision tree or an expert."""
     from ibt.evaluate.rollouts import episode_metrics, final_seeds, rollout
     from ibt.experts.expert import load_expert
 
     if args.policy in ALGOS:
         if args.task is None:
             raise UsageError(f"evaluating an expert needs --task, e.g. "
-                             f"`{_again(args, '--task', 'CartPole-v1')}`")
+                             f"`{rerun_command(args, '--task', 'CartPole-v1')}`")
         task = task_for(args, args.task)
         policy: Any = load_expert(task, args.policy, args.checkpoint)
     else:
@@ -125,7 +126,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export(args: argparse.Namespace) -> int:
+def export_command(args: argparse.Namespace) -> int:
+    """The ``export`` command: a BT file to another format."""
     from ibt.bt.json_io import save_json
     from ibt.export.drawing import require_dot, to_graphviz
     from ibt.export.pictures import save_drawing
@@ -134,7 +136,7 @@ def _export(args: argparse.Namespace) -> int:
     out = check_output(args.output, EXPORT_SUFFIXES[args.format], inputs=[args.bt])
     if args.format in ("svg", "png"):
         require_dot()
-    bt = _load_bt(args.bt)
+    bt = load_bt_file(args.bt)
     if args.format == "json":
         save_json(bt, out)
     elif args.format == "btcpp-xml":
@@ -149,7 +151,8 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_btcpp(args: argparse.Namespace) -> int:
+def run_btcpp_command(args: argparse.Namespace) -> int:
+    """The ``run-btcpp`` command: BehaviorTree.CPP ticks an exported BT on its task."""
     from ibt.export.engine import run_btcpp
 
     hint = "write one with `python -m ibt export BT.json --format btcpp-xml -o BT.xml`"

@@ -57,7 +57,7 @@ def _int_at_least(minimum: int, what: str, maximum: int = 10**6) -> Callable[[st
     return parse
 
 
-def _seconds(text: str) -> float:
+def seconds_arg(text: str) -> float:
     """An argparse type: a finite number of seconds, 0 or more."""
     try:
         value = float(text)
@@ -84,7 +84,7 @@ JOBS = _int_at_least(1, "processes", 1024)
 MAX_DURATION = 7 * 24 * 3600.0  # a week: longer budgets are typing errors
 
 
-def _duration(text: str) -> float:
+def duration_arg(text: str) -> float:
     """An argparse type: a wall-clock budget such as ``90``, ``90s``, ``10m``, ``1h30m``
     (seconds, more than 0, at most a week)."""
     import re
@@ -290,7 +290,7 @@ def read_input(path: str | Path, what: str, hint: str, limit: int = MAX_BT_BYTES
         raise UsageError(str(err)) from None
 
 
-def _again(args: argparse.Namespace, *extra: str) -> str:
+def rerun_command(args: argparse.Namespace, *extra: str) -> str:
     """The user's own command with ``extra`` arguments added (a hint that works)."""
     return "python -m ibt " + shlex.join([*args.argv, *extra])
 
@@ -330,7 +330,7 @@ def load_tree_file(path: str | Path, args: argparse.Namespace | None = None) -> 
     return load(path, trust_pickle=bool(getattr(args, "trust_pickle", False)))
 
 
-def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) -> Task:
+def tree_file_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) -> Task:
     """The task a tree file was distilled on, with the names it was fitted on.
 
     A name of the form ``MODULE:EnvId`` in the file imports nothing: only ``--env-module`` on
@@ -338,7 +338,7 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
     name = doc["task"]
     module, colon, bare = name.rpartition(":")
     if colon and module not in args.env_module:
-        retry = _again(args, "--env-module", module)
+        retry = rerun_command(args, "--env-module", module)
         raise UsageError(f"{path} was distilled on {bare}, which the module {module} registers; "
                          f"a tree file imports nothing: if you trust that module, run "
                          f"`{retry}`")
@@ -347,7 +347,7 @@ def _tree_task(doc: dict[str, Any], path: str | Path, args: argparse.Namespace) 
     except LookupError:
         modules = [m for m in doc.get("env_modules", []) if m not in args.env_module]
         if modules:
-            retry = _again(args, "--env-module", modules[0])
+            retry = rerun_command(args, "--env-module", modules[0])
             raise UsageError(f"{path} was distilled on {name}, an environment that "
                              f"{modules[0]} registers; run `{retry}`") from None
         raise
@@ -384,13 +384,14 @@ def _command_task(doc: dict[str, Any], path: str | Path, task: Task) -> Task:
     return command_task(task, tuple(doc["action_names"]))
 
 
-def _bt_hint(path: str | Path) -> str:
+def bt_file_hint(path: str | Path) -> str:
+    """The fix to name when a BT file is missing or bad: the commands that make one."""
     bt_file = shlex.quote(str(Path(path).with_suffix(".json")))
     return ("make one with `python -m ibt distill CartPole-v1 ppo -o tree.json` and "
             f"`python -m ibt synthesize tree.json -o {bt_file}`")
 
 
-def _read_json(path: str | Path, what: str, hint: str) -> Any:
+def read_json_input(path: str | Path, what: str, hint: str) -> Any:
     """A JSON input file: regular, bounded, strict (no duplicate keys)."""
     from ibt.distill.tree_file import parse_json
 
@@ -401,11 +402,12 @@ def _read_json(path: str | Path, what: str, hint: str) -> Any:
         raise UsageError(str(err)) from None
 
 
-def _load_bt(path: str | Path, doc: Any = None):
+def load_bt_file(path: str | Path, doc: Any = None):
+    """A BT file (or its parsed ``doc``) as a BehaviorTree; bad input is a UsageError."""
     from ibt.bt.model import BehaviorTree
 
     if doc is None:
-        doc = _read_json(path, "behavior tree", _bt_hint(path))
+        doc = read_json_input(path, "behavior tree", bt_file_hint(path))
     try:
         return BehaviorTree.from_dict(doc)
     except RecursionError:

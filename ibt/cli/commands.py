@@ -18,17 +18,18 @@ if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
 
 from ibt.cli.checks import (
     UsageError,
-    _again,
-    _tree_task,
     check_input,
     check_output,
     check_output_folder,
     load_tree_file,
+    rerun_command,
     task_for,
+    tree_file_task,
 )
 
 
-def _train(args: argparse.Namespace) -> int:
+def train_command(args: argparse.Namespace) -> int:
+    """The ``train`` command: train, evaluate and record the missing (or all) experts."""
     from ibt.experts.expert import hyperparams
     from ibt.experts.training import train_missing
     from ibt.paths import DATA_DIR
@@ -75,7 +76,8 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _random(args: argparse.Namespace) -> int:
+def random_command(args: argparse.Namespace) -> int:
+    """The ``random-baselines`` command: write the random agents' returns."""
     from ibt.experts.training import random_baselines
     from ibt.paths import DATA_DIR
 
@@ -86,7 +88,8 @@ def _random(args: argparse.Namespace) -> int:
     return 0
 
 
-def _distill(args: argparse.Namespace) -> int:
+def distill_command(args: argparse.Namespace) -> int:
+    """The ``distill`` command: distil an expert into a decision-tree file."""
     from ibt.distill.loop import DistillConfig, distill
     from ibt.distill.tree_file import save_tree_file
     from ibt.experts.expert import load_expert
@@ -160,13 +163,14 @@ def _distill_box(task: Any, expert: Any, out: Path, args: argparse.Namespace) ->
     return 0
 
 
-def _refine(args: argparse.Namespace) -> int:
+def refine_command(args: argparse.Namespace) -> int:
+    """The ``refine`` command: raise a tree file's return by refinement."""
     from ibt.distill.tree_file import save_tree_file
     from ibt.refine.by_return import refine, task_config
 
     out = check_output(args.output, (".json",), inputs=[args.tree])
     doc = load_tree_file(args.tree, args)
-    task = _tree_task(doc, args.tree, args)
+    task = tree_file_task(doc, args.tree, args)
     overrides: dict[str, Any] = {"max_leaves": args.max_leaves}
     if args.episodes is not None:
         overrides["episodes"] = args.episodes
@@ -234,13 +238,14 @@ def _refine_commands(doc: dict[str, Any], task: Any, out: Path, overrides: dict[
     return 0
 
 
-def _synthesize(args: argparse.Namespace) -> int:
+def synthesize_command(args: argparse.Namespace) -> int:
+    """The ``synthesize`` command: a decision-tree file to an exact BT."""
     from ibt.bt.json_io import save_json
     from ibt.synth.imitation import NotEquivalentError, imitation_bt
 
     out = check_output(args.output, (".json",), inputs=[args.tree])
     doc = load_tree_file(args.tree, args)
-    task = _tree_task(doc, args.tree, args)
+    task = tree_file_task(doc, args.tree, args)
     try:
         if args.method == "imitation-bt":  # the paper's construction takes its options
             result = imitation_bt(doc["tree"], task, default_strategy=args.default_strategy,
@@ -264,7 +269,8 @@ def _synthesize(args: argparse.Namespace) -> int:
     return 0
 
 
-def _convert_tree(args: argparse.Namespace) -> int:
+def convert_tree_command(args: argparse.Namespace) -> int:
+    """The ``convert-tree`` command: a trusted pickled tree file to JSON."""
     from ibt.distill.tree_file import PICKLE_SUFFIXES, convert_tree_file
 
     out = check_output(args.output, (".json",), inputs=[args.tree])
@@ -275,7 +281,7 @@ def _convert_tree(args: argparse.Namespace) -> int:
                          "JSON tree files need no conversion")
     if not args.trust_pickle:
         raise UsageError(f"reading {source} runs the code a pickle holds; if it comes from a "
-                         f"trusted source, run `{_again(args, '--trust-pickle')}`")
+                         f"trusted source, run `{rerun_command(args, '--trust-pickle')}`")
     doc = convert_tree_file(source, out)
     print(f"{source} ({doc['task']}, {doc['tree'].get_n_leaves()} leaves) converted; written "
           f"to {out}")

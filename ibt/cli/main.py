@@ -40,7 +40,7 @@ from ibt.tasks.settings import ALGOS, BOX_MAX_LEAF_NODES, DEFAULT_MAX_LEAF_NODES
 if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
     pass
 
-from ibt.cli.bt_commands import _evaluate, _export, _run_btcpp
+from ibt.cli.bt_commands import evaluate_command, export_command, run_btcpp_command
 from ibt.cli.checks import (
     EPISODE_STEPS,
     EPISODES,
@@ -60,11 +60,18 @@ from ibt.cli.checks import (
     TIMESTEPS,
     Terminated,
     UsageError,
-    _duration,
-    _seconds,
+    duration_arg,
+    seconds_arg,
 )
-from ibt.cli.commands import _convert_tree, _distill, _random, _refine, _synthesize, _train
-from ibt.cli.pipeline_command import _budget, _keep, _leaf_limits, _pipeline
+from ibt.cli.commands import (
+    convert_tree_command,
+    distill_command,
+    random_command,
+    refine_command,
+    synthesize_command,
+    train_command,
+)
+from ibt.cli.pipeline_command import budget_arg, keep_arg, leaf_limits_arg, pipeline_command
 
 TRUST_HELP = ("read a pickled (.joblib) tree file of earlier versions: it runs the code it "
               "holds, so only for files from a trusted source (better: convert-tree it once)")
@@ -100,13 +107,13 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--timesteps", type=TIMESTEPS, default=None, help="override the table")
     train.add_argument("--experts-dir", metavar="DIR",
                        help="where checkpoints and manifest.csv go (default: data/experts)")
-    train.set_defaults(func=_train)
+    train.set_defaults(func=train_command)
 
     rnd = command("random-baselines", help="write data/experts/random.csv")
     rnd.add_argument("tasks", nargs="*", metavar="TASK")
     rnd.add_argument("--episodes", type=EPISODES, default=100)
     rnd.add_argument("-o", "--output", help="CSV to write (default: data/experts/random.csv)")
-    rnd.set_defaults(func=_random)
+    rnd.set_defaults(func=random_command)
 
     dist = command("distill", help="distil an expert into a decision tree")
     dist.add_argument("task", help="a registered task, any gymnasium env id, or MODULE:EnvId")
@@ -130,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
                       f"tasks, {BOX_MAX_LEAF_NODES} for other tasks with continuous actions, "
                       "whose leaves are then merged into named commands)")
     dist.add_argument("--quiet", action="store_true", help="no progress bar")
-    dist.set_defaults(func=_distill)
+    dist.set_defaults(func=distill_command)
 
     ref = command("refine", help="raise a decision tree's return by refinement (thresholds "
                   "by CMA-ES, leaf actions, pruning), optionally to a leaf limit")
@@ -144,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     ref.add_argument("--seed", type=SEED, default=0)
     ref.add_argument("--quiet", action="store_true", help="no progress bar")
     ref.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
-    ref.set_defaults(func=_refine)
+    ref.set_defaults(func=refine_command)
 
     syn = command("synthesize", help="turn a decision tree into a verified BT (JSON)")
     syn.add_argument("tree", help="decision-tree file (.json) from `distill`")
@@ -156,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     syn.add_argument("--dont-cares", action="store_true",
                      help="give Espresso the impossible threshold combinations as don't-cares")
     syn.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
-    syn.set_defaults(func=_synthesize)
+    syn.set_defaults(func=synthesize_command)
 
     ev = command("evaluate", help="returns of a BT (.json), a decision tree (.json) or an "
                  f"expert ({'/'.join(ALGOS)}) on the fixed evaluation episodes")
@@ -166,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "(pickles): use only ones from a trusted source")
     ev.add_argument("--episodes", type=EPISODES, default=100)
     ev.add_argument("--trust-pickle", action="store_true", help=TRUST_HELP)
-    ev.set_defaults(func=_evaluate)
+    ev.set_defaults(func=evaluate_command)
 
     conv = command("convert-tree", help="convert a decision-tree file of earlier versions "
                    "(.joblib, a pickle) into the JSON format")
@@ -174,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     conv.add_argument("-o", "--output", required=True, help="decision-tree file (.json)")
     conv.add_argument("--trust-pickle", action="store_true",
                       help="required: you trust the file's source (unpickling runs its code)")
-    conv.set_defaults(func=_convert_tree)
+    conv.set_defaults(func=convert_tree_command)
 
     ex = command("export", help="write a BT as json, dot, svg, png or BehaviorTree.CPP v4 XML")
     ex.add_argument("bt", help="BT JSON file")
@@ -185,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="btcpp-xml only: 'portable' (default) runs in stock BehaviorTree.CPP "
                     "with ScriptConditions on blackboard keys; 'check-feature' needs a custom "
                     "C++ CheckFeature condition node")
-    ex.set_defaults(func=_export)
+    ex.set_defaults(func=export_command)
 
     rb = command("run-btcpp", help="roll a BehaviorTree.CPP XML out with the engine "
                  "(behaviortreepy) ticking, beside the Python BT on the same seeds")
@@ -195,9 +202,9 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--groot-port", type=PORT, default=None, metavar="PORT",
                     help="publish the tree to Groot2 on this port while it runs "
                     "(behaviortreepy's Groot2Publisher; connect Groot2 to it)")
-    rb.add_argument("--step-delay", type=_seconds, default=0.0, metavar="SECONDS",
+    rb.add_argument("--step-delay", type=seconds_arg, default=0.0, metavar="SECONDS",
                     help="sleep between steps, to watch a run in Groot2")
-    rb.set_defaults(func=_run_btcpp)
+    rb.set_defaults(func=run_btcpp_command)
 
     pl = command("pipeline", help="from an agent to a recommended BT, anytime: distil and refine "
                  "at increasing leaf limits, search structure where the target is not kept, "
@@ -213,9 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--agent", metavar="MODULE:FUNCTION",
                     help="with algo callable: a function from one observation to an action "
                     "(MODULE a .py file or an importable module)")
-    pl.add_argument("--keep", type=_keep, default=0.95,
+    pl.add_argument("--keep", type=keep_arg, default=0.95,
                     help="target share of the agent's random-normalised return (default 0.95)")
-    pl.add_argument("--time", type=_duration, default="10m", metavar="DURATION",
+    pl.add_argument("--time", type=duration_arg, default="10m", metavar="DURATION",
                     help="wall-clock budget such as 90s, 10m, 1h30m; the best BT found by then "
                     "is recommended (default 10m); a rerun with more time resumes from the cache")
     pl.add_argument("--max-nodes", type=MAX_NODES, default=None, metavar="N",
@@ -226,10 +233,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--jobs", type=JOBS, default=None, metavar="N",
                     help="processes for the restarts (default: the machine's cores; a Dask "
                     "cluster when IBT_DASK_SCHEDULER holds its address)")
-    pl.add_argument("--budget", type=_budget, default="1x",
+    pl.add_argument("--budget", type=budget_arg, default="1x",
                     help="smoke (seconds), a scale of every step's episode budget such as 2x, "
                     "or refinement episodes per tree such as 40000 (default 1x)")
-    pl.add_argument("--leaves", type=_leaf_limits, default=(4, 8, 16, 32), metavar="L,L,...",
+    pl.add_argument("--leaves", type=leaf_limits_arg, default=(4, 8, 16, 32), metavar="L,L,...",
                     help="leaf limits (default 4,8,16,32): distilled smallest first, searched "
                          "by bisection")
     pl.add_argument("--episodes", type=EPISODES, default=None,
@@ -241,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "output names are replaced (said first), other files left alone; "
                     "read-only files are never replaced")
     pl.add_argument("--quiet", action="store_true", help="no progress bars")
-    pl.set_defaults(func=_pipeline)
+    pl.set_defaults(func=pipeline_command)
     for rolls_out in (rnd, dist, ref, ev, rb, pl):
         rolls_out.add_argument("--max-episode-steps", type=EPISODE_STEPS, default=None,
                                metavar="N", help="cut every episode at N steps (default: the "

@@ -24,7 +24,8 @@ from ibt.cli.checks import (
 )
 
 
-def _pipeline(args: argparse.Namespace) -> int:
+def pipeline_command(args: argparse.Namespace) -> int:
+    """The ``pipeline`` command: from an agent to a recommended BT and its report."""
     from ibt.engine.agent import callable_agent, sb3_agent
     from ibt.pipeline.outputs import OUTPUTS
     from ibt.pipeline.owned_folder import FolderError, claim, release, take
@@ -92,7 +93,7 @@ def _pipeline(args: argparse.Namespace) -> int:
     return 0
 
 
-def _keep(text: str) -> float:
+def keep_arg(text: str) -> float:
     """An argparse type: a share in (0, 1]."""
     try:
         value = float(text)
@@ -103,7 +104,7 @@ def _keep(text: str) -> float:
     return value
 
 
-def _budget(text: str) -> Any:
+def budget_arg(text: str) -> Any:
     """An argparse type: ``smoke``, a scale (``2x``, at most 1000x) or refinement episodes per
     leaf limit, at most refine's ``--episodes`` maximum."""
     from ibt.pipeline.recommend import parse_budget
@@ -121,7 +122,7 @@ def _budget(text: str) -> Any:
 MAX_LEAF_LIMITS = 12  #: --leaves: at most this many limits (each is a distillation)
 
 
-def _leaf_limits(text: str) -> tuple[int, ...]:
+def leaf_limits_arg(text: str) -> tuple[int, ...]:
     """An argparse type: comma-separated leaf limits, each from 2 to distill's
     ``--max-leaf-nodes`` maximum, at most :data:`MAX_LEAF_LIMITS` of them."""
     parts = [v for v in text.split(",") if v.strip()]

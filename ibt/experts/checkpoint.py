@@ -28,7 +28,8 @@ from ibt.files import check_regular
 from ibt.tasks.task import Task
 
 
-def _norm_path(path: Path) -> Path:
+def norm_sidecar_path(path: Path) -> Path:
+    """The observation-normalisation sidecar (``<ckpt>.obs_norm.json``) of a checkpoint."""
     return path.with_suffix(".obs_norm.json")
 
 
@@ -48,7 +49,7 @@ NOT_UNPICKLED: dict[str, Any] = {
     "_last_original_obs": None}
 
 
-def _check_regular(path: Path, limit: int, what: str) -> None:
+def check_regular_file(path: Path, limit: int, what: str) -> None:
     """``ValueError`` unless ``path`` is a regular file of at most ``limit`` bytes."""
     check_regular(path, os.stat(path), limit, what)
 
@@ -83,7 +84,7 @@ def space_difference(saved: Any, expected: Any) -> str | None:
 def read_obs_norm(path: Path, n_features: int) -> dict[str, Any]:
     """A normalisation sidecar, checked: ``mean`` and ``var`` of ``n_features`` finite numbers
     (var >= 0), finite ``epsilon`` >= 0 and ``clip`` > 0; ``ValueError`` names the file."""
-    _check_regular(path, MAX_SIDECAR_BYTES, "normalisation sidecar")
+    check_regular_file(path, MAX_SIDECAR_BYTES, "normalisation sidecar")
     try:
         doc = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as err:
@@ -119,7 +120,7 @@ def needs_obs_norm(task: Task, algo: str) -> bool:
     (False for an algorithm without a catalogue row: a user's checkpoint)."""
     return algo in dict(task.experts) and task.hyperparams(algo).normalize is True
 
-def _checkpoint_algo(path: str | Path) -> str | None:
+def checkpoint_algo(path: str | Path) -> str | None:
     """The algorithm an SB3 checkpoint was saved by (from its ``data`` entry), if readable."""
     try:
         with zipfile.ZipFile(path) as archive:

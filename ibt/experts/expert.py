@@ -30,10 +30,10 @@ import numpy as np
 from ibt.experts.checkpoint import (
     MAX_CHECKPOINT_BYTES,
     NOT_UNPICKLED,
-    _check_regular,
-    _checkpoint_algo,
-    _norm_path,
+    check_regular_file,
+    checkpoint_algo,
     needs_obs_norm,
+    norm_sidecar_path,
     read_obs_norm,
     space_difference,
 )
@@ -223,7 +223,7 @@ def load_expert(task: Task, algo: str, path: str | Path | None = None) -> Expert
     if not path.exists():
         raise FileNotFoundError(f"no expert checkpoint at {path}; {_train_hint(task, algo, path)}")
     if not path.is_dir():
-        _check_regular(path, MAX_CHECKPOINT_BYTES, "SB3 checkpoint")
+        check_regular_file(path, MAX_CHECKPOINT_BYTES, "SB3 checkpoint")
     stat = path.stat()
     return _load_cached(task, algo, str(path.resolve()), stat.st_mtime_ns, stat.st_size)
 
@@ -260,7 +260,7 @@ def _load_cached(task: Task, algo: str, path: str, _mtime: int, _size: int) -> E
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path} is not a Stable-Baselines3 checkpoint (not a zip archive); "
                          f"pass the .zip that model.save wrote, or {_train_hint(task, algo)}")
-    saved_by = _checkpoint_algo(path)
+    saved_by = checkpoint_algo(path)
     if saved_by is not None and saved_by != algo:
         raise ValueError(f"{path} is a {saved_by.upper()} checkpoint, not a {algo.upper()} one; "
                          f"pass {saved_by} as the algorithm")
@@ -292,7 +292,7 @@ def _load_cached(task: Task, algo: str, path: str, _mtime: int, _size: int) -> E
             raise ValueError(f"{path} {what} {saved}, but {task.name} has {expected} "
                              f"({problem}); is this the checkpoint of another task? Pass "
                              f"{task.name}'s own checkpoint")
-    norm_file = _norm_path(Path(path))
+    norm_file = norm_sidecar_path(Path(path))
     if norm_file.exists():
         obs_norm = read_obs_norm(norm_file, int(np.prod(env_obs.shape or (1,))))
     elif needs_obs_norm(task, algo):
@@ -381,7 +381,7 @@ def train_expert(task: Task, algo: str, path: str | Path | None = None, *,
         if callback is not None:
             shutil.rmtree(str(callback.best_model_save_path), ignore_errors=True)
     atomic_save_model(model, path)
-    norm_file = _norm_path(path)
+    norm_file = norm_sidecar_path(path)
     if norm_obs:
         # the observation statistics (one array: a flat Box)
         assert isinstance(venv, VecNormalize) and not isinstance(venv.obs_rms, dict)

@@ -152,7 +152,7 @@ class Batch(Protocol):
     def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray: ...
 
 
-class _Episodes:
+class RefineEpisodes:
     """Hands out fresh refinement episode seeds and counts what was spent: episodes, steps,
     and the run's wall and CPU seconds since it was opened (:meth:`elapsed`)."""
 
@@ -202,7 +202,7 @@ class _Episodes:
         return result.returns.reshape(len(population), k)
 
 
-def feature_spread(task: Task, arrays: TreeArrays, episodes: _Episodes) -> np.ndarray:
+def feature_spread(task: Task, arrays: TreeArrays, episodes: RefineEpisodes) -> np.ndarray:
     """Each feature's standard deviation over the states the tree visits (a CMA-ES scale)."""
     policy = Population(arrays, arrays.threshold, arrays.action)
     return visited_spread(task, lambda x: policy.decide(x, np.zeros(len(x), dtype=np.int64)),
@@ -210,7 +210,7 @@ def feature_spread(task: Task, arrays: TreeArrays, episodes: _Episodes) -> np.nd
 
 
 def visited_spread(task: Task, decide: Callable[[np.ndarray], np.ndarray],
-                   episodes: _Episodes) -> np.ndarray:
+                   episodes: RefineEpisodes) -> np.ndarray:
     """Each feature's standard deviation over the states a policy visits (``decide``: feature
     rows -> actions) on 8 fresh episodes, floored at a thousandth of the feature's box: the
     unit in which CMA-ES moves a threshold on that feature."""
@@ -228,11 +228,11 @@ def visited_spread(task: Task, decide: Callable[[np.ndarray], np.ndarray],
     return np.maximum(x.std(axis=0), floor)
 
 
-def cma_search(n_params: int, config: RefineConfig, episodes: _Episodes,
+def cma_search(n_params: int, config: RefineConfig, episodes: RefineEpisodes,
                rng: np.random.Generator, population_of: Callable[[np.ndarray], Any]
                ) -> tuple[np.ndarray | None, dict]:
     """CMA-ES on ``n_params`` parameters in their own units (``population_of`` maps a batch of
-    parameter vectors to a population that :meth:`_Episodes.score` rolls out), generations of
+    parameter vectors to a population that :meth:`RefineEpisodes.score` rolls out), generations of
     ``cma_episodes`` fresh episodes while the budget lasts; then the incumbent (all zeros),
     CMA-ES's mean and its best sample are compared on the same fresh episodes. Returns the
     winner's parameters (None: no generation ran) and what happened."""
@@ -272,7 +272,7 @@ def cma_search(n_params: int, config: RefineConfig, episodes: _Episodes,
 
 
 def _cma_stage(arrays: TreeArrays, spread: np.ndarray, config: RefineConfig,
-               episodes: _Episodes, rng: np.random.Generator) -> tuple[TreeArrays, dict]:
+               episodes: RefineEpisodes, rng: np.random.Generator) -> tuple[TreeArrays, dict]:
     """CMA-ES on the tree's thresholds, each in its feature's spread (:func:`cma_search`)."""
     splits = np.flatnonzero(~arrays.is_leaf)
     if len(splits) == 0:
@@ -292,7 +292,7 @@ def _cma_stage(arrays: TreeArrays, spread: np.ndarray, config: RefineConfig,
 
 
 def _confirmed(incumbent: TreeArrays, candidate: TreeArrays, config: RefineConfig,
-               episodes: _Episodes, tolerance: float | None = None) -> bool:
+               episodes: RefineEpisodes, tolerance: float | None = None) -> bool:
     """Does ``candidate`` hold up against ``incumbent`` on fresh episodes (twice a sweep's)?
 
     ``tolerance`` None: it must score strictly higher; else at most ``tolerance`` lower.
@@ -317,7 +317,7 @@ def _confirmed(incumbent: TreeArrays, candidate: TreeArrays, config: RefineConfi
     return bool(new > old) if tolerance is None else bool(new >= old - tolerance)
 
 
-def _leaf_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes
+def _leaf_stage(arrays: TreeArrays, config: RefineConfig, episodes: RefineEpisodes
                 ) -> tuple[TreeArrays, dict]:
     changes = 0
     tried = 0
@@ -346,8 +346,8 @@ def _leaf_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes
     return arrays, {"changes": changes, "sweeps": tried}
 
 
-def _prune_stage(arrays: TreeArrays, config: RefineConfig, episodes: _Episodes,
-                 optional: bool = True) -> tuple[TreeArrays, dict]:
+def prune_stage(arrays: TreeArrays, config: RefineConfig, episodes: RefineEpisodes,
+                optional: bool = True) -> tuple[TreeArrays, dict]:
     """Cut subtrees: down to ``max_leaves`` by least loss, then (``optional``) while a cut
     costs nothing."""
     forced_cuts = cuts = 0
@@ -403,7 +403,7 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
                          f"{task.n_features}")
     rng = np.random.default_rng(seed)
     record = Refinement(task.name, seed, config.as_params(), candidates=[source])
-    episodes = _Episodes.opened(task, seed, config, "refine", progress)
+    episodes = RefineEpisodes.opened(task, seed, config, "refine", progress)
     bar = episodes.bar
     spread = feature_spread(task, source, episodes)
     current = source
@@ -414,7 +414,7 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
         elif name == "leaves":
             current, info = _leaf_stage(current, config, episodes)
         else:
-            current, info = _prune_stage(current, config, episodes, optional=name == "prune")
+            current, info = prune_stage(current, config, episodes, optional=name == "prune")
         current = current.simplified()
         record.candidates.append(current)
         record.stages.append({"stage": name, "leaves_before": before,
@@ -434,7 +434,7 @@ def refine(tree: DecisionTreeClassifier | TreeArrays, task: Task, config: Refine
     return close_record(record, scores, episodes)
 
 
-def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineConfig,
+def held_out_means(episodes: RefineEpisodes, populations: list[Any], config: RefineConfig,
                    seed: int) -> list[float]:
     """Each candidate's mean return on the run's held-out selection episodes (disjoint from
     its refinement episodes and the final evaluation; not counted in the budget)."""
@@ -445,7 +445,7 @@ def held_out_means(episodes: _Episodes, populations: list[Any], config: RefineCo
 Record = TypeVar("Record", bound=RefinementRecord)
 
 
-def close_record(record: Record, scores: list[float], episodes: _Episodes) -> Record:
+def close_record(record: Record, scores: list[float], episodes: RefineEpisodes) -> Record:
     """A refinement's record completed: its selection means and what the run cost (episodes,
     steps, wall and CPU seconds since ``episodes`` was opened)."""
     record.selection_means = scores

@@ -10,7 +10,7 @@ so the BT synthesised from a refined tree has the same readable set of named com
 
 The seed discipline, the budget in episodes and the held-out choice are those of
 :mod:`ibt.refine.by_return`, reused rather than copied: refinement episodes come from its
-``_Episodes`` (seeds from :data:`ibt.evaluate.rollouts.REFINE_SEED_BASE`, disjoint from the
+``RefineEpisodes`` (seeds from :data:`ibt.evaluate.rollouts.REFINE_SEED_BASE`, disjoint from the
 distillation's training and selection episodes and from the final evaluation; every member of a
 generation on the same fresh episodes, each generation on new ones); the stages' results, the
 source included, are compared on held-out selection episodes
@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 
 from ibt.refine.by_return import (
+    RefineEpisodes,
     RefinementRecord,
     ThresholdSets,
-    _Episodes,
     close_record,
     cma_search,
     held_out_means,
@@ -117,7 +117,7 @@ def _rounded(values: np.ndarray, task: Task, decimals: int) -> np.ndarray:
 
 
 def _cma_stage(arrays: CommandArrays, task: Task, spread: np.ndarray, config: RefineConfig,
-               episodes: _Episodes, rng: np.random.Generator, decimals: int
+               episodes: RefineEpisodes, rng: np.random.Generator, decimals: int
                ) -> tuple[CommandArrays, dict]:
     """CMA-ES on thresholds and command values (:func:`ibt.refine.by_return.cma_search`):
     thresholds in their feature's spread, values in :data:`VALUE_SCALE` of the Box, each
@@ -180,7 +180,7 @@ def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, 
                          f"has {task.n_features}")
     rng = np.random.default_rng(seed)
     record = CommandRefinement(task.name, seed, config.as_params(), candidates=[source])
-    episodes = _Episodes.opened(task, seed, config, "refine commands", progress)
+    episodes = RefineEpisodes.opened(task, seed, config, "refine commands", progress)
     bar = episodes.bar
     spread = visited_spread(task, source.actions, episodes)
     current = source

@@ -35,9 +35,9 @@ import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout, selection_seeds
-from ibt.refine.by_return import _Episodes, _prune_stage
+from ibt.refine.by_return import RefineEpisodes, prune_stage
 from ibt.refine.forest import Forest
-from ibt.refine.structure_mutations import _Mutator, arrays, nested
+from ibt.refine.structure_mutations import TreeMutator, arrays, nested
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
@@ -79,7 +79,7 @@ class Evolution:
         return self.best.to_sklearn()
 
 
-class _Budget(_Episodes):
+class _Budget(RefineEpisodes):
     """Fresh refinement episodes of the search (its own seed block), counted; trees of any
     shapes are scored side by side as a :class:`Forest`."""
 
@@ -91,7 +91,7 @@ class _Budget(_Episodes):
     def score_trees(self, trees: list[TreeArrays], seeds: list[int], *, count: bool = True
                     ) -> np.ndarray:
         """``(trees, episodes)`` returns, every tree on every seed (as
-        :meth:`ibt.refine.by_return._Episodes.score`, reading only the tested columns)."""
+        :meth:`ibt.refine.by_return.RefineEpisodes.score`, reading only the tested columns)."""
         forest = Forest(trees)
         read = forest.reader(self.task)
         k = len(seeds)
@@ -129,7 +129,7 @@ class _Budget(_Episodes):
 def _shrink(tree: TreeArrays, config: EvolveConfig, budget: _Budget) -> TreeArrays:
     """A seed tree larger than the leaf limit, cut down by return: each forced cut is the
     least harmful of every split fixed to either side, on common fresh episodes
-    (:func:`ibt.refine.by_return._prune_stage` with few episodes per candidate, counted in the
+    (:func:`ibt.refine.by_return.prune_stage` with few episodes per candidate, counted in the
     search's budget). Cuts by training samples alone ruin a refined tree (a 29-leaf
     LunarLander tree at 21 leaves fell from 226 to about 0)."""
     if tree.n_leaves <= config.max_leaves:
@@ -138,7 +138,7 @@ def _shrink(tree: TreeArrays, config: EvolveConfig, budget: _Budget) -> TreeArra
 
     cut = RefineConfig(stages=("shrink",), episodes=max(budget.left, 1), sweep_episodes=4,
                        max_leaves=config.max_leaves, n_envs=config.n_envs)
-    shrunk, _ = _prune_stage(tree, cut, budget, optional=False)
+    shrunk, _ = prune_stage(tree, cut, budget, optional=False)
     return shrunk
 
 
@@ -156,7 +156,7 @@ def evolve(sources: list[DecisionTreeClassifier | TreeArrays], task: Task,
     bar = budget.bar
     seeds = [_shrink(s.simplified(), config, budget) for s in seeds]
     record = Evolution(task.name, seed, config.as_params(), sources=seeds)
-    mutator = _Mutator(task, config, rng, expert)
+    mutator = TreeMutator(task, config, rng, expert)
     parents = list(seeds)
     hall: list[TreeArrays] = []
     generation = 0

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.refine.tree_arrays import TreeArrays, _from_nested
+from ibt.refine.tree_arrays import TreeArrays, tree_arrays_from_nested
 from ibt.tasks.settings import EvolveConfig
 from ibt.tasks.task import Task
 
@@ -45,7 +45,7 @@ def arrays(node: tuple, n_features: int, n_actions: int) -> TreeArrays:
             return ("leaf", n[1], 1.0)
         return ("split", n[1], n[2], weighted(n[3]), weighted(n[4]), 1.0)
 
-    return _from_nested(weighted(node), n_features, n_actions).simplified()
+    return tree_arrays_from_nested(weighted(node), n_features, n_actions).simplified()
 
 
 def _paths(node: tuple, path: tuple = ()) -> list[tuple[tuple, tuple]]:
@@ -69,7 +69,7 @@ def _leaves(node: tuple) -> int:
     return 1 if node[0] == "leaf" else _leaves(node[3]) + _leaves(node[4])
 
 
-class _Mutator:
+class TreeMutator:
     """One random mutation of a tree, with the visited-state pool and the expert's labels."""
 
     def __init__(self, task: Task, config: EvolveConfig, rng: np.random.Generator,

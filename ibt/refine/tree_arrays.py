@@ -129,7 +129,7 @@ class TreeArrays:
                 return ("leaf", left[1], left[2] + right[2])
             return ("split", f, t, left, right, float(self.samples[node]))
 
-        return _from_nested(build(0, lo, hi), self.n_features, self.n_actions)
+        return tree_arrays_from_nested(build(0, lo, hi), self.n_features, self.n_actions)
 
     def to_sklearn(self) -> DecisionTreeClassifier:
         """A fitted ``DecisionTreeClassifier`` that decides exactly as these arrays."""
@@ -170,7 +170,9 @@ _NODE_DTYPE = np.dtype({
     "offsets": [0, 8, 16, 24, 32, 40, 48, 56], "itemsize": 64})
 
 
-def _from_nested(root: tuple, n_features: int, n_actions: int) -> TreeArrays:
+def tree_arrays_from_nested(root: tuple, n_features: int, n_actions: int) -> TreeArrays:
+    """A TreeArrays from nested tuples ``("leaf", action, samples)`` and
+    ``("split", feature, threshold, left, right, samples)``, nodes numbered in preorder."""
     feature: list[int] = []
     threshold: list[float] = []
     left: list[int] = []

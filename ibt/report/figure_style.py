@@ -67,7 +67,7 @@ def method_style(method: str, k: int = 0) -> dict[str, object]:
             "label": METHOD_LABELS.get(method, method), "edgecolor": "#333333",
             "linewidth": 0.4}
 
-def _interval_columns(frame: pd.DataFrame) -> tuple[str, str]:
+def interval_columns(frame: pd.DataFrame) -> tuple[str, str]:
     """The interval's columns: ``interval_low/high`` (:mod:`ibt.report.stats`) or
     ``ci_low/high``."""
     if "interval_low" in frame:
@@ -83,7 +83,7 @@ def interval_caption(frame: pd.DataFrame, what: str = "error bars") -> str:
     return f"{what}: 95 % percentile-bootstrap CI of the mean over seeds"
 
 
-def _statuses(frame: pd.DataFrame) -> dict[tuple[str, str], str]:
+def flagged_experts(frame: pd.DataFrame) -> dict[tuple[str, str], str]:
     """``(task, expert) -> status`` for experts that are not ``ok`` (when the column exists)."""
     if "expert_status" not in frame:
         return {}
@@ -92,13 +92,14 @@ def _statuses(frame: pd.DataFrame) -> dict[tuple[str, str], str]:
                                          strict=True) if s != "ok"}
 
 
-def _mark_status(ax: plt.Axes, i: int, status: str) -> None:
+def mark_status(ax: plt.Axes, i: int, status: str) -> None:
     """Grey band and a label behind task ``i``'s bars: its expert is not a valid one."""
     ax.axvspan(i - 0.48, i + 0.48, color="#dddddd", zorder=0, lw=0)
     ax.text(i, 0.98, STATUS_NOTE.get(status, status), transform=ax.get_xaxis_transform(),
             ha="center", va="top", fontsize=9, style="italic", color="#444444")
 
-def _wrap(text: str, width: int, break_on_hyphens: bool = True) -> str:
+def wrap_text(text: str, width: int, break_on_hyphens: bool = True) -> str:
+    """``text`` wrapped at ``width`` characters, lines joined by newlines (figure captions)."""
     import textwrap
 
     return "\n".join(textwrap.wrap(text, width, break_on_hyphens=break_on_hyphens))
@@ -107,7 +108,7 @@ _NICE_TICKS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 40, 50, 60, 80, 100,
                250, 300, 400, 500, 600, 800, 1000)
 
 
-def _plain_log_ticks(ax: plt.Axes, most: int = 6) -> None:
+def plain_log_ticks(ax: plt.Axes, most: int = 6) -> None:
     """Plain-number ticks (``20``, not ``2 x 10^1``) on a log x axis, at most ``most`` of them
     and roughly even in log space, so that neighbouring labels never overlap."""
     from matplotlib.ticker import FixedLocator, NullFormatter, StrMethodFormatter

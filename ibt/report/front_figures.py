@@ -15,10 +15,10 @@ import pandas as pd
 from ibt.report.figure_style import (
     FIG_WIDTH,
     GREY,
-    _plain_log_ticks,
-    _wrap,
     method_style,
     methods_in,
+    plain_log_ticks,
+    wrap_text,
 )
 from ibt.report.plots import save_figure
 
@@ -76,7 +76,7 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
         ax.axhline(100, color="black", lw=0.8, ls=":")
         ax.axhline(98, color=GREY, lw=0.8, ls="--")
         ax.set_xscale("log")
-        _plain_log_ticks(ax)
+        plain_log_ticks(ax)
         values = pd.concat([here_points["retention_norm"], here_means["low"]])
         ax.set_ylim(min(0.0, float(values.min()) - 5) if len(values) else 0, 110)
         ax.set_title(f"{task}, {str(expert).upper()} expert" if expert is not None else task)
@@ -91,7 +91,7 @@ def size_retention_front(points: pd.DataFrame, means: pd.DataFrame, anchors: pd.
         "each tree. Black marks: published trees, or trees run here (node counts of trees, not "
         "BTs), on our scale. Dotted: the expert; dashed: 98 %.", notes]))
     fig.tight_layout(rect=(0, 0.0, 1, 0.94))
-    fig.text(0.5, 0.0, _wrap(caption, 110, break_on_hyphens=False), ha="center", va="top",
+    fig.text(0.5, 0.0, wrap_text(caption, 110, break_on_hyphens=False), ha="center", va="top",
              fontsize=9)  # method names such as Imitation-BT+SR stay whole
     if path is not None:
         save_figure(fig, path)
@@ -157,7 +157,7 @@ def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.Da
         if len(bar):
             ax.axhline(float(bar.iloc[0]), color=GREY, lw=0.8, ls="--")
         ax.set_xscale("log")
-        _plain_log_ticks(ax)
+        plain_log_ticks(ax)
         ax.set_title(f"{task}, {str(rows['algo'].iloc[0]).upper()} expert")
         ax.set_xlabel("BT nodes (log)")
     axes[0, 0].set_ylabel("mean return")
@@ -169,7 +169,7 @@ def continuous_front(points: pd.DataFrame, anchors: pd.DataFrame, targets: pd.Da
                "tree nodes, 2 x leaves - 1, not BT nodes). Dotted: the expert; dashed: the "
                "target return, fixed before the runs (the targets table of notebook 10).")
     fig.tight_layout(rect=(0, 0.0, 1, 0.97))
-    fig.text(0.5, 0.0, _wrap(caption, 110), ha="center", va="top", fontsize=9)
+    fig.text(0.5, 0.0, wrap_text(caption, 110), ha="center", va="top", fontsize=9)
     if path is not None:
         save_figure(fig, path)
     return fig

@@ -26,14 +26,14 @@ from ibt.report.figure_style import (
     GREY,
     OKABE_ITO,
     SAVE_DPI,
-    _interval_columns,
-    _mark_status,
-    _plain_log_ticks,
-    _statuses,
-    _wrap,
+    flagged_experts,
     interval_caption,
+    interval_columns,
+    mark_status,
     method_style,
     methods_in,
+    plain_log_ticks,
+    wrap_text,
 )
 
 
@@ -140,12 +140,12 @@ def retention_grid(summary: pd.DataFrame, value: str = "retention_norm",
     interval_low/high and interval; or the older ci_low/ci_high). An ``expert_status`` column
     other than ``ok`` greys the task's bars of that expert and names the status.
     """
-    low_col, high_col = _interval_columns(summary)
+    low_col, high_col = interval_columns(summary)
     experts = [e for e in ("dqn", "ppo", "a2c") if e in set(summary["expert"])]
     experts += sorted(set(summary["expert"]) - set(experts))
     tasks = list(dict.fromkeys(summary["task"]))
     methods = methods_in(summary)
-    statuses = _statuses(summary)
+    statuses = flagged_experts(summary)
     fig, axes = plt.subplots(len(experts), 1, figsize=(FIG_WIDTH, 2.3 * len(experts) + 0.6),
                              squeeze=False, sharex=True)
     width = 0.84 / len(methods)
@@ -157,7 +157,7 @@ def retention_grid(summary: pd.DataFrame, value: str = "retention_norm",
         part = summary[summary["expert"] == expert].set_index(["task", "method"])
         for i, task in enumerate(tasks):
             if (task, expert) in statuses:
-                _mark_status(ax, i, statuses[(task, expert)])
+                mark_status(ax, i, statuses[(task, expert)])
         for k, method in enumerate(methods):
             xs, ys, lo, hi = [], [], [], []
             for i, task in enumerate(tasks):
@@ -181,7 +181,7 @@ def retention_grid(summary: pd.DataFrame, value: str = "retention_norm",
              f"Bars: means over seeds; {interval_caption(summary)}."]
     if {"bt-espresso", "re-bt-espresso"} & set(methods):
         notes.append(BASELINE_NOTE)
-    fig.text(0.5, 0.0, "\n".join(_wrap(n, 110) for n in notes), ha="center", va="top",
+    fig.text(0.5, 0.0, "\n".join(wrap_text(n, 110) for n in notes), ha="center", va="top",
              fontsize=9)
     fig.tight_layout()
     if path is not None:
@@ -270,7 +270,7 @@ def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figu
     experts += sorted(set(frame["expert"]) - set(experts))
     tasks = list(dict.fromkeys(frame["task"]))
     methods = methods_in(frame)
-    statuses = _statuses(frame)
+    statuses = flagged_experts(frame)
     fig, axes = plt.subplots(len(experts), 1, figsize=(FIG_WIDTH, 2.2 * len(experts) + 0.6),
                              squeeze=False, sharex=True, sharey=True)
     width = 0.84 / len(methods)
@@ -278,7 +278,7 @@ def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figu
         part = frame[frame["expert"] == expert].groupby(["task", "method"])["nodes"].mean()
         for i, task in enumerate(tasks):
             if (task, expert) in statuses:
-                _mark_status(ax, i, statuses[(task, expert)])
+                mark_status(ax, i, statuses[(task, expert)])
         for k, method in enumerate(methods):
             xs = [i - 0.42 + width * (k + 0.5) for i, t in enumerate(tasks) if (t, method) in part]
             ys = [part[(t, method)] for t in tasks if (t, method) in part]
@@ -289,9 +289,9 @@ def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figu
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, ncol=min(4, len(methods)), loc="lower center",
                bbox_to_anchor=(0.5, 1.0), frameon=False)
-    fig.text(0.5, 0.0, _wrap("Mean over seeds: decision-tree nodes for BC, DAgger and VIPER; "
-                             "BT nodes (every node) for the BT methods. BT-Espresso and "
-                             "RE:BT-Espresso are built from the BC tree.", 110),
+    fig.text(0.5, 0.0, wrap_text("Mean over seeds: decision-tree nodes for BC, DAgger and VIPER; "
+                                 "BT nodes (every node) for the BT methods. BT-Espresso and "
+                                 "RE:BT-Espresso are built from the BC tree.", 110),
              ha="center", va="top", fontsize=9)
     fig.tight_layout()
     if path is not None:
@@ -325,7 +325,7 @@ def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
     ``frame``: :func:`ibt.report.stats.summarise` output grouped by task, expert and max_leaf_nodes
     (columns nodes, ``value`` and the interval columns).
     """
-    low_col, high_col = _interval_columns(frame)
+    low_col, high_col = interval_columns(frame)
     tasks = list(dict.fromkeys(frame["task"]))
     columns = min(columns, len(tasks))
     rows = -(-len(tasks) // columns)
@@ -348,15 +348,15 @@ def size_vs_retention(frame: pd.DataFrame, value: str = "retention_norm",
         ax.axhline(100, color="black", lw=0.8, ls=":")
         ax.axhline(98, color=GREY, lw=0.8, ls="--")
         ax.set_xscale("log")
-        _plain_log_ticks(ax)
+        plain_log_ticks(ax)
         ax.set_title(task)
         ax.set_xlabel(xlabel)
     for ax in axes[:, 0]:
         ax.set_ylabel("retention (%, random-norm.)")
     axes[0, 0].legend(loc="lower right")
-    fig.text(0.5, 0.0, _wrap(f"A point per leaf limit: mean over seeds; "
-                             f"{interval_caption(frame)}. Dotted: the expert (100 %); "
-                             "dashed: 98 %.", 100), ha="center", va="top", fontsize=9)
+    fig.text(0.5, 0.0, wrap_text(f"A point per leaf limit: mean over seeds; "
+                                 f"{interval_caption(frame)}. Dotted: the expert (100 %); "
+                                 "dashed: 98 %.", 100), ha="center", va="top", fontsize=9)
     fig.tight_layout()
     if path is not None:
         save_figure(fig, path)

@@ -72,7 +72,8 @@ def status_footnotes(res: Results, shown: pd.DataFrame | None = None) -> str:
     return "\n".join(f"- {line}" for line in lines)
 
 
-def _grid(res: Results) -> pd.DataFrame | None:
+def distillation_grid(res: Results) -> pd.DataFrame | None:
+    """The distillation table with expert statuses; None when absent or missing a column."""
     grid = res.table("distillation")
     if grid is None or not {"task", "expert", "method", "retention_norm"} <= set(grid.columns):
         return None
@@ -81,7 +82,7 @@ def _grid(res: Results) -> pd.DataFrame | None:
 
 def retention_markdown(res: Results, value: str = "retention_norm") -> str:
     """Task x expert rows, one column per method, each cell with its interval."""
-    grid = _grid(res)
+    grid = distillation_grid(res)
     if grid is None or value not in grid:
         return "_not measured: no distillation results_"
     syn = res.table("synthesis")
@@ -98,7 +99,7 @@ def retention_markdown(res: Results, value: str = "retention_norm") -> str:
 
 def nodes_markdown(res: Results) -> str:
     """Mean node counts: trees for BC/DAgger/VIPER, BTs for the synthesis methods."""
-    grid, syn = _grid(res), res.table("synthesis")
+    grid, syn = distillation_grid(res), res.table("synthesis")
     if grid is None or syn is None or "nodes" not in grid or "nodes" not in syn:
         return "_not measured: no distillation or synthesis results_"
     syn = with_expert_status(syn, res.expert_status())
@@ -118,7 +119,7 @@ def nodes_markdown(res: Results) -> str:
 
 def headline_markdown(res: Results) -> str:
     """The README's headline: Imitation-BT vs BC retention and BT size vs RE:BT per task."""
-    grid = _grid(res)
+    grid = distillation_grid(res)
     if grid is None:
         return "_not measured: no distillation results_"
     syn = res.table("synthesis")
@@ -142,7 +143,7 @@ def headline_markdown(res: Results) -> str:
 
 def aggregate_markdown(res: Results) -> str:
     """IQM retention per method over the counted cells of each task group, stratified CI."""
-    grid = _grid(res)
+    grid = distillation_grid(res)
     if grid is None:
         return "_not measured: no distillation results_"
     rows = counted(with_expert_status(retention_table(grid, res.table("synthesis")),

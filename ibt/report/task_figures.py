@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from ibt.report.figure_style import FIG_WIDTH, GREY, METHOD_LABELS, OKABE_ITO, SAVE_DPI, _wrap
+from ibt.report.figure_style import FIG_WIDTH, GREY, METHOD_LABELS, OKABE_ITO, SAVE_DPI, wrap_text
 from ibt.report.plots import label_package_delivery, save_figure
 
 
@@ -62,7 +62,7 @@ def decision_regions(grids: dict[str, np.ndarray], extent: tuple[float, float, f
     handles: list[Artist] = [Patch(color=c, label=a)
                              for c, a in zip(colors, action_names, strict=True)]
     handles += [Line2D([], [], color="black", ls=styles[k % len(styles)], lw=1.6,
-                       label=_wrap(name, 28))
+                       label=wrap_text(name, 28))
                 for k, name in enumerate(overlays or {})]
     axes[0, -1].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1),
                        frameon=False)

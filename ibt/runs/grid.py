@@ -23,8 +23,7 @@ from tqdm import tqdm
 from ibt.cache.store import load_or_compute
 from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
-from ibt.engine.stages import bt_digest as _bt_digest
-from ibt.engine.stages import tree_digest
+from ibt.engine.stages import bt_digest, tree_digest
 from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import (
     episode_metrics,
@@ -254,7 +253,7 @@ def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
     from ibt.evaluate.policies import BTPolicy
 
     spec = get_task(task)
-    return _final_evaluation(cfg, spec, "bt-eval", {"bt": _bt_digest(bt)},
+    return _final_evaluation(cfg, spec, "bt-eval", {"bt": bt_digest(bt)},
                              lambda: BTPolicy(spec, bt).act)
 
 
@@ -266,7 +265,7 @@ def executors_agree(cfg: Config, task: str | Task, bt: Any, tree: Any, n_states:
 
     spec = get_task(task)
     params = {"task": spec.name, "n_states": n_states, "tree": tree_digest(tree),
-              "bt": _bt_digest(bt)}
+              "bt": bt_digest(bt)}
 
     def compute() -> dict[str, Any]:
         states = spec.sample_features(n_states, np.random.default_rng(0))
@@ -290,7 +289,7 @@ def speed_benchmark(cfg: Config, task: str | Task, algo: str, seed: int) -> pd.D
     tree = distill_cached(cfg, spec, algo, "imitation-bt", seed).best_tree
     bt = imitation_bt(tree, spec).bt
     params = {"task": spec.name, "algo": algo, "seed": seed, "tree": tree_digest(tree),
-              "bt": _bt_digest(bt), "machine": f"{platform.machine()} {platform.processor()}",
+              "bt": bt_digest(bt), "machine": f"{platform.machine()} {platform.processor()}",
               "cores": os.cpu_count()}
 
     def compute() -> list[dict[str, Any]]:

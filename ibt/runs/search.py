@@ -27,13 +27,12 @@ from ibt.bt.model import BehaviorTree
 from ibt.cache.store import load_or_compute
 from ibt.engine.agent import committed_agent
 from ibt.engine.budgets import evolve_config, polish_config
-from ibt.engine.stages import evolve_one, refinement_cached
+from ibt.engine.stages import bt_digest, evolve_one, refinement_cached
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
 from ibt.refine.structure import Evolution
 from ibt.runs.front import STRUCTURE, plus_run, ranked_sources
-from ibt.runs.grid import _bt_digest
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
@@ -104,7 +103,7 @@ def protocol_evaluation(cfg: Config, task: str | Task, bt: BehaviorTree, episode
     spec = get_task(task)
     bt = BehaviorTree.from_json(bt.to_json())  # exactly what the committed file holds
     params = {"task": spec.name, "episodes": episodes, "threshold": threshold,
-              "bt": _bt_digest(bt)}
+              "bt": bt_digest(bt)}
 
     def compute() -> dict[str, Any]:
         from ibt.evaluate.policies import BTPolicy

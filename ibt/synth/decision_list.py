@@ -5,17 +5,17 @@ failed. Imitation-BT (:mod:`ibt.synth.imitation`) ignores this and minimises eac
 as
 if no other rule existed. Method ``"decision-list"`` uses it:
 
-1. **Rule sets in Selector order** (:meth:`_Search.espresso_list`): for an action order (the
+1. **Rule sets in Selector order** (:meth:`CandidateSearch.espresso_list`): for an action order (the
    last action is the unguarded default), each action's cover is minimised by Espresso with the
    earlier rules' regions as extra don't-cares, besides the threshold-implication don't-cares
    of :mod:`ibt.synth.logic`. Order and default are searched together: every order up to
    ``EXHAUSTIVE_ACTIONS`` actions (the paper's order first), a beam search over order prefixes
    beyond (PackageDelivery has 8 actions).
 2. **Tree-shaped candidates**: a split ``if c then L else R`` is ``Fallback(Sequence(c, L), R)``,
-   one condition per split (:meth:`_Search.tree_shaped`). A dynamic programme over the tree
-   (:meth:`_Search.programme`) picks for every subtree the smaller of "split here, either branch
-   guarded, each side solved the same way" and "one decision list for the subtree" (its
-   don't-cares include everything outside the subtree), so a shared tree prefix is tested once
+   one condition per split (:meth:`CandidateSearch.tree_shaped`). A dynamic programme over the
+   tree (:meth:`CandidateSearch.programme`) picks for every subtree the smaller of "split here,
+   either branch guarded, each side solved the same way" and "one decision list for the subtree"
+   (its don't-cares include everything outside the subtree), so a shared tree prefix is tested once
    while the leaves below it merge into decision lists.
 3. **Exact simplification** (:func:`simplify`): a candidate is a flat list of
    ``(term, action)`` entries; entries, then literals, are dropped one at a time, in a fixed
@@ -37,7 +37,7 @@ larger. The winner is verified against its tree like every synthesised BT
 (:func:`ibt.synth.imitation.verify`).
 
 **Determinism.** Every search step runs in a fixed order and the search is bounded in Espresso
-*work units* (``max_work``, see :class:`_Budget`), never in seconds: a tree always gives the
+*work units* (``max_work``, see :class:`EspressoBudget`), never in seconds: a tree always gives the
 same BT. ``time_limit`` (seconds) is only a safety net: past it the search stops, warns and
 returns the best candidate found so far (still verified). The net covers every step after the
 search too: simplifying and factoring a candidate check the same deadline, and past it a
@@ -56,16 +56,23 @@ import pandas as pd
 from sklearn.tree import DecisionTreeClassifier
 
 from ibt.bt.model import BehaviorTree, Node, iterate
-from ibt.synth.decision_list_exact import Entry, SearchTimeout, _box, decides_like, simplify
-from ibt.synth.decision_list_factoring import _compose, _guarded, _root
-from ibt.synth.decision_list_search import _Budget, _conditions, _paths, _Search, _Split, _view
+from ibt.synth.decision_list_exact import Entry, SearchTimeout, decides_like, simplify, term_box
+from ibt.synth.decision_list_factoring import compose_node, guarded_action, root_selector
+from ibt.synth.decision_list_search import (
+    CandidateSearch,
+    EspressoBudget,
+    Split,
+    condition_count,
+    tree_view,
+    view_paths,
+)
 from ibt.synth.imitation import RuleSet, Synthesis, imitation_bt, verify
 from ibt.synth.rules import Term
 from ibt.tasks.catalogue import Task
 
 METHOD = "decision-list"
 VERSION = 1  # part of the synthesis cache key of this method: bump when its search changes
-MAX_WORK = 1_500_000  # Espresso work units (see _Budget) of one synthesis
+MAX_WORK = 1_500_000  # Espresso work units (see EspressoBudget) of one synthesis
 TIME_LIMIT = 60.0  # seconds; a safety net, see the module docstring
 PROGRAMME_KEEP = (1,)  # lists kept per region by the tree programme (keeping 3 gained < 1 %)
 
@@ -94,17 +101,17 @@ def decision_list_bt(tree: DecisionTreeClassifier, task: Task, *, time_limit: fl
     if relational.is_relational(tree):
         return relational.synthesise(decision_list_bt, tree, task, time_limit=time_limit,
                                      max_work=max_work, check=check, rng_seed=rng_seed)
-    view = _view(tree)
-    tested = [lit.feature for term, _ in _paths(view) for lit in term]
+    view = tree_view(tree)
+    tested = [lit.feature for term, _ in view_paths(view) for lit in term]
     if tested and max(tested) >= task.n_features:
         raise ValueError(f"the tree tests feature {max(tested)}, but task {task.name} has "
                          f"{task.n_features} features; synthesise with the task it was fitted on")
-    search = _Search(view, _Budget(max_work, time_limit))
-    leaves = [(_box(term, task.n_features), a) for term, a in search.paths]
+    search = CandidateSearch(view, EspressoBudget(max_work, time_limit))
+    leaves = [(term_box(term, task.n_features), a) for term, a in search.paths]
     lists: list[tuple[str, list[Entry]]] = [("tree-shaped", search.tree_shaped())]
     stopped = False
     try:
-        if isinstance(view, _Split):
+        if isinstance(view, Split):
             lists.append(("paper order", search.paper_order(tree)))
             best_order = search.best_list(search.paths, ())
             if best_order is not None:
@@ -123,11 +130,12 @@ def decision_list_bt(tree: DecisionTreeClassifier, task: Task, *, time_limit: fl
             entries = simplify(entries, leaves, deadline)
             if not decides_like(entries, leaves):  # simplify keeps exactness; never taken
                 continue
-            root = _root(search.factorer(entries))
+            root = root_selector(search.factorer(entries))
         except SearchTimeout:  # the safety net: this candidate as its flat (exact) list
             stopped = True
-            root = _root(_compose("fb", [_guarded([t], a, {}) for t, a in entries]))
-        key = (_size(root), _conditions(entries))
+            root = root_selector(compose_node(
+                "fb", [guarded_action([t], a, {}) for t, a in entries]))
+        key = (_size(root), condition_count(entries))
         sizes[name] = min(sizes.get(name, key[0]), key[0])
         if best is None or key < best[0]:
             best = (key, name, root, entries)

@@ -39,7 +39,8 @@ def _term_bounds(term: Term) -> dict[int, tuple[float, float]]:
     return bounds
 
 
-def _box(term: Term, n_features: int) -> Box:
+def term_box(term: Term, n_features: int) -> Box:
+    """The region of ``term`` as a box (lower bounds, upper bounds), infinite where untested."""
     lo = [-np.inf] * n_features
     hi = [np.inf] * n_features
     for f, (a, b) in _term_bounds(term).items():
@@ -88,7 +89,7 @@ def decides_like(entries: list[Entry], leaves: list[tuple[Box, int]]) -> bool:
     return True
 
 
-def _tighten(term: Term) -> Term:
+def tighten(term: Term) -> Term:
     """Drop literals implied by another of the same term (``x <= 1`` beside ``x <= 0.5``)."""
     bounds = _term_bounds(term)
     out: list[Literal] = []

@@ -40,7 +40,8 @@ def _act(action: int) -> _N:
     return _N("act", (action,), 1)
 
 
-def _compose(kind: str, children: list[_N] | tuple[_N, ...]) -> _N:
+def compose_node(kind: str, children: list[_N] | tuple[_N, ...]) -> _N:
+    """A ``kind`` node of ``children``, flattening children of the same kind (one child: itself)."""
     flat: list[_N] = []
     for child in children:
         flat.extend(child.items if child.kind == kind else (child,))
@@ -54,7 +55,7 @@ def _or_node(terms: frozenset[Term], memo: dict) -> _N:
     if terms in memo:
         return memo[terms]
     ordered = sorted(terms)
-    best = _compose("fb", [_compose("seq", [_cond(x) for x in t]) for t in ordered])
+    best = compose_node("fb", [compose_node("seq", [_cond(x) for x in t]) for t in ordered])
     counts: dict[Literal, int] = {}
     for t in ordered:
         for lit in t:
@@ -63,19 +64,20 @@ def _or_node(terms: frozenset[Term], memo: dict) -> _N:
     for lit in shared[: OR_BRANCHING if len(terms) <= OR_BRANCHING_TERMS else 1]:
         inner = frozenset(tuple(x for x in t if x != lit) for t in terms if lit in t)
         others = frozenset(t for t in terms if lit not in t)
-        head = _cond(lit) if () in inner else _compose("seq", [_cond(lit),
-                                                              _or_node(inner, memo)])
-        node = _compose("fb", [head, _or_node(others, memo)]) if others else head
+        head = _cond(lit) if () in inner else compose_node("seq", [_cond(lit),
+                                                                   _or_node(inner, memo)])
+        node = compose_node("fb", [head, _or_node(others, memo)]) if others else head
         if node.size < best.size:
             best = node
     memo[terms] = best
     return best
 
 
-def _guarded(terms: list[Term], action: int, memo: dict) -> _N:
+def guarded_action(terms: list[Term], action: int, memo: dict) -> _N:
+    """``Sequence(OR of terms, action)``, the OR factored; just the action if a term is empty."""
     if any(not t for t in terms):
         return _act(action)
-    return _compose("seq", [_or_node(frozenset(terms), memo), _act(action)])
+    return compose_node("seq", [_or_node(frozenset(terms), memo), _act(action)])
 
 
 class Factorer:
@@ -95,7 +97,7 @@ class Factorer:
         self.guard_memo: dict = {}
 
     def __call__(self, entries: list[Entry]) -> _N:
-        return _compose("fb", self._solve(tuple(entries)))
+        return compose_node("fb", self._solve(tuple(entries)))
 
     def size(self, entries: list[Entry]) -> int:
         return self(entries).size
@@ -103,7 +105,7 @@ class Factorer:
     def _guard(self, terms: tuple[Term, ...], action: int) -> _N:
         key = (terms, action)
         if key not in self.guard_memo:
-            self.guard_memo[key] = _guarded(list(terms), action, self.or_memo)
+            self.guard_memo[key] = guarded_action(list(terms), action, self.or_memo)
         return self.guard_memo[key]
 
     def _solve(self, es: tuple[Entry, ...]) -> tuple[_N, ...]:
@@ -130,7 +132,7 @@ class Factorer:
                 for lit in sorted(common):
                     inner = self._solve(tuple((tuple(x for x in t if x != lit), a)
                                               for t, a in es[i:j + 1]))
-                    node = _compose("seq", [_cond(lit), _compose("fb", inner)])
+                    node = compose_node("seq", [_cond(lit), compose_node("fb", inner)])
                     options.append((node.size + rest[0], (node, *rest[1])))
             best[i] = min(options, key=lambda o: o[0])
         self.memo[es] = best[0][1]
@@ -152,7 +154,7 @@ def _to_bt_node(node: _N) -> Node:
     return Sequence(children) if node.kind == "seq" else Fallback(children)
 
 
-def _root(node: _N) -> Node:
+def root_selector(node: _N) -> Node:
     """A root Selector (a one-action BT is ``Selector(action)``, as Imitation-BT's)."""
     if node.kind == "fb":
         return Selector(tuple(_to_bt_node(c) for c in node.items))

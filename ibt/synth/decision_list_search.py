@@ -1,22 +1,22 @@
 """The decision-list synthesis's candidate lists for one tree (:mod:`ibt.synth.decision_list`).
 
-:class:`_Search` makes the candidates the synthesis compares, each a flat list of
+:class:`CandidateSearch` makes the candidates the synthesis compares, each a flat list of
 ``(term, action)`` entries:
 
-* **rule sets in Selector order** (:meth:`_Search.espresso_list`): for an action order (the
+* **rule sets in Selector order** (:meth:`CandidateSearch.espresso_list`): for an action order (the
   last action is the unguarded default), each action's cover is minimised by Espresso with the
   earlier rules' regions as extra don't-cares, besides the threshold-implication don't-cares
   of :mod:`ibt.synth.logic`. Order and default are searched together
-  (:meth:`_Search.best_list`): every order up to ``EXHAUSTIVE_ACTIONS`` actions (the paper's
+  (:meth:`CandidateSearch.best_list`): every order up to ``EXHAUSTIVE_ACTIONS`` actions (the paper's
   order first), a beam search over order prefixes beyond (PackageDelivery has 8 actions).
-* **tree-shaped** (:meth:`_Search.tree_shaped`): ``if c then L else R`` as
+* **tree-shaped** (:meth:`CandidateSearch.tree_shaped`): ``if c then L else R`` as
   ``Fallback(Sequence(c, L), R)``, one condition per split.
-* **the tree programme** (:meth:`_Search.programme`): for every subtree the smaller of "split
-  here, either branch guarded, each side solved the same way" and "one decision list for the
-  subtree" (its don't-cares include everything outside the subtree).
+* **the tree programme** (:meth:`CandidateSearch.programme`): for every subtree the smaller
+  of "split here, either branch guarded, each side solved the same way" and "one decision list
+  for the subtree" (its don't-cares include everything outside the subtree).
 
-The search is bounded in Espresso *work units* (:class:`_Budget`), never in seconds, so a tree
-always gives the same candidates; the wall-clock safety net raises
+The search is bounded in Espresso *work units* (:class:`EspressoBudget`), never in seconds, so a
+tree always gives the same candidates; the wall-clock safety net raises
 :class:`ibt.synth.decision_list_exact.SearchTimeout`.
 """
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from sklearn.tree import DecisionTreeClassifier
 
-from ibt.synth.decision_list_exact import Entry, SearchTimeout, _tighten
+from ibt.synth.decision_list_exact import Entry, SearchTimeout, tighten
 from ibt.synth.decision_list_factoring import Factorer
 from ibt.synth.imitation import minimised_rule_sets
 from ibt.synth.logic import Variables, minimise
@@ -44,21 +44,25 @@ IN_PROCESS_WORK = 60_000
 
 
 @dataclass(frozen=True)
-class _Leaf:
+class Leaf:
+    """A subtree whose every leaf predicts ``action``."""
+
     action: int
 
 
 @dataclass(frozen=True)
-class _Split:
+class Split:
+    """An inner node of the tree view: ``literal`` true goes ``left``, false ``right``."""
+
     literal: Literal  # the test sending a state left (``x <= t``)
-    left: _Leaf | _Split
-    right: _Leaf | _Split
+    left: Leaf | Split
+    right: Leaf | Split
 
 
-_View = _Leaf | _Split
+_View = Leaf | Split
 
 
-def _view(tree: DecisionTreeClassifier) -> _View:
+def tree_view(tree: DecisionTreeClassifier) -> _View:
     """The tree as nested splits, subtrees whose leaves all predict one action collapsed."""
     t = tree.tree_
     classes = np.asarray(tree.classes_)
@@ -66,28 +70,28 @@ def _view(tree: DecisionTreeClassifier) -> _View:
     def build(node: int) -> _View:
         left, right = int(t.children_left[node]), int(t.children_right[node])
         if left == right:
-            return _Leaf(int(classes[int(np.argmax(t.value[node][0]))]))
+            return Leaf(int(classes[int(np.argmax(t.value[node][0]))]))
         lo, hi = build(left), build(right)
-        if isinstance(lo, _Leaf) and lo == hi:
+        if isinstance(lo, Leaf) and lo == hi:
             return lo
-        return _Split(Literal(int(t.feature[node]), float(t.threshold[node]), le=True), lo, hi)
+        return Split(Literal(int(t.feature[node]), float(t.threshold[node]), le=True), lo, hi)
 
     return build(0)
 
 
-def _paths(view: _View, prefix: Term = ()) -> list[Entry]:
+def view_paths(view: _View, prefix: Term = ()) -> list[Entry]:
     """Every leaf of ``view`` as (path below the view's root, action), left before right."""
-    if isinstance(view, _Leaf):
+    if isinstance(view, Leaf):
         return [(prefix, view.action)]
-    return (_paths(view.left, (*prefix, view.literal))
-            + _paths(view.right, (*prefix, view.literal.negated())))
+    return (view_paths(view.left, (*prefix, view.literal))
+            + view_paths(view.right, (*prefix, view.literal.negated())))
 
 
 def _actions(view: _View) -> tuple[int, ...]:
-    return tuple(sorted({a for _, a in _paths(view)}))
+    return tuple(sorted({a for _, a in view_paths(view)}))
 
 
-class _Budget:
+class EspressoBudget:
     """Counts Espresso work (the deterministic unit) and watches the wall-clock safety net.
 
     One Espresso call costs ``variables x (ON cubes + don't-care cubes)`` units, a proxy that
@@ -114,12 +118,13 @@ def _flat_size(entries: list[Entry]) -> int:
     return sum(len(t) + 2 for t, _ in entries)
 
 
-def _conditions(entries: list[Entry]) -> int:
+def condition_count(entries: list[Entry]) -> int:
+    """Condition literals of a flat decision list (the tie-break after BT nodes)."""
     return sum(len(t) for t, _ in entries)
 
 
 def _prefix(lit: Literal, entries: list[Entry]) -> list[Entry]:
-    return [(_tighten((lit, *t)), a) for t, a in entries]
+    return [(tighten((lit, *t)), a) for t, a in entries]
 
 
 def _ranked(paths: list[Entry]) -> tuple[int, ...]:
@@ -131,12 +136,12 @@ def _ranked(paths: list[Entry]) -> tuple[int, ...]:
     return tuple(sorted(k, key=lambda a: (k[a], a)))
 
 
-class _Search:
+class CandidateSearch:
     """The candidate lists of one tree: Espresso decision lists and the tree programme."""
 
-    def __init__(self, view: _View, budget: _Budget) -> None:
+    def __init__(self, view: _View, budget: EspressoBudget) -> None:
         self.view = view
-        self.paths = _paths(view)
+        self.paths = view_paths(view)
         self.variables = Variables(t for t, _ in self.paths)
         self.budget = budget
         self.factorer = Factorer(budget.deadline)
@@ -146,7 +151,7 @@ class _Search:
 
     def key(self, entries: list[Entry]) -> tuple[int, int]:
         """What the search minimises: BT nodes, then condition nodes."""
-        return self.factorer.size(entries), _conditions(entries)
+        return self.factorer.size(entries), condition_count(entries)
 
     def espresso_list(self, paths: list[Entry], context: Term, order: tuple[int, ...]
                       ) -> list[Entry] | None:
@@ -170,7 +175,7 @@ class _Search:
                 self.espresso[key] = minimise(terms, variables, dont_cares=True,
                                               extra_dont_cares=outside + earlier,
                                               in_process_limit=IN_PROCESS_WORK)
-            entries += [(_tighten(term), action) for term in self.espresso[key]]
+            entries += [(tighten(term), action) for term in self.espresso[key]]
             earlier = earlier + self.espresso[key]
         entries.append(((), order[-1]))
         return entries
@@ -179,7 +184,7 @@ class _Search:
         """The variables of a region (its paths' and its context's tests) and how many
         implication don't-cares they have."""
         if context not in self.local:  # a context (root-to-subtree path) names its region
-            paths = _paths(self._subtree(context))
+            paths = view_paths(self._subtree(context))
             variables = Variables([*(t for t, _ in paths), context])
             self.local[context] = (variables, len(variables.implication_dont_cares()))
         return self.local[context]
@@ -187,7 +192,7 @@ class _Search:
     def _subtree(self, context: Term) -> _View:
         view = self.view
         for lit in context:
-            assert isinstance(view, _Split)
+            assert isinstance(view, Split)
             view = view.left if lit.le else view.right
         return view
 
@@ -238,7 +243,7 @@ class _Search:
     def tree_shaped(self, view: _View | None = None) -> list[Entry]:
         """``if c then L else R`` as ``Fallback(Sequence(c, L), R)``: one condition a split."""
         view = self.view if view is None else view
-        if isinstance(view, _Leaf):
+        if isinstance(view, Leaf):
             return [((), view.action)]
         return _prefix(view.literal, self.tree_shaped(view.left)) + self.tree_shaped(view.right)
 
@@ -251,7 +256,7 @@ class _Search:
         key = (keep, id(view), context)
         if key in self.memo:
             return self.memo[key]
-        if isinstance(view, _Leaf):
+        if isinstance(view, Leaf):
             self.memo[key] = [[((), view.action)]]
             return self.memo[key]
         lit = view.literal
@@ -260,7 +265,7 @@ class _Search:
         options = []
         for left, right in itertools.product(lefts, rights):
             options += [_prefix(lit, left) + right, _prefix(lit.negated(), right) + left]
-        dl = self.best_list(_paths(view), context)
+        dl = self.best_list(view_paths(view), context)
         if dl is not None:
             options.append(dl)
         ranked: list[list[Entry]] = []

@@ -78,10 +78,10 @@ def lookup_config(cfg: Config) -> Config:
     entries notebooks 07 and 10 wrote), so a smoke run reads them and computes nothing."""
     if cfg.profile != "smoke":
         return cfg
-    from ibt.profiles import _paper
+    from ibt.profiles import paper_settings
 
-    paper = {k: v for k, v in _paper().items() if k not in ("data_dir", "figures_dir",
-                                                            "paper_dir")}
+    paper = {k: v for k, v in paper_settings().items() if k not in ("data_dir", "figures_dir",
+                                                                    "paper_dir")}
     return replace(cfg, profile="paper", **{**paper, "progress": False, "refresh": False})
 
 
