@@ -33,11 +33,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ibt.runs.engine.agent import committed_agent
-from ibt.runs.engine.stages import distill_config
 from sklearn.tree import DecisionTreeClassifier
 
 from ibt.distill.loop import ClassifierLearner, interactive_loop
+from ibt.engine.agent import committed_agent
+from ibt.engine.budgets import distill_config
 from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import final_seeds, rollout
 from ibt.profiles import config as profile_config
