@@ -356,9 +356,9 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     ``next_round(seconds)``, given the last round's wall time, says whether another round may
     start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
     with more time adds the others from the cache. With ``next_round``, rounds go on past
-    ``restarts`` up to ``most`` seeds while it allows (time left over is spent on restarts)
-    and no restart's choice mean has reached ``enough`` (the target); each round runs at most
-    ``n_jobs`` seeds."""
+    ``restarts`` up to ``most`` seeds while it allows (time left over is spent on restarts),
+    up to the first restart whose choice mean reaches ``enough`` (the target; the same seeds on
+    any number of cores); each round runs at most ``n_jobs`` seeds."""
     from ibt.engine.parallel import parallel_map
     from ibt.evaluate.policies import TreePolicy
     from ibt.refine.relational import best_tree
@@ -382,9 +382,12 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
             trees.append(tree)
             means.append(returns_of(cfg, task, {"tree": tree_key(tree)},
                                     lambda t=tree: TreePolicy(task, t).act, choice).mean)
-        if next_round is not None and not next_round(seconds):
+        reached = [i for i in range(restarts - 1, len(trees))
+                   if enough is not None and means[i] >= enough]
+        if reached:  # the restarts up to the first that reached it, whatever the round width
+            del trees[reached[0] + 1:], means[reached[0] + 1:]
             break
-        if len(trees) >= restarts and enough is not None and max(means) >= enough:
+        if next_round is not None and not next_round(seconds):
             break
     seeds = tuple(seed + r for r in range(len(trees)))
     chosen = max(range(len(trees)), key=lambda i: (means[i], -leaves_of(trees[i]), -i))
