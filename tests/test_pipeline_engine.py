@@ -297,6 +297,37 @@ def test_only_the_ladders_last_step_spends_spare_time_on_restarts(agents, tmp_pa
 
 
 
+def test_the_relational_search_starts_from_the_relational_trees_too(agents, tmp_path,
+                                                                     monkeypatch):
+    """The relational search's seed trees: the rung's and the largest rung's distilled trees
+    of both learners, axis-aligned first (its candidate columns come from the first)."""
+    import ibt
+    from ibt.distill.relational import feature_map_of
+    from ibt.tasks.catalogue import resolve_task
+
+    seeded: list[list] = []
+    search = stages.search
+
+    def recorded(cfg, agent, sources, *args, **kwargs):
+        seeded.append(list(sources))
+        return search(cfg, agent, sources, *args, **kwargs)
+
+    monkeypatch.setattr(stages, "search", recorded)
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    agent = sb3_agent(resolve_task("ToyCart-v0"), "ppo", agents / "cart.zip")
+    ladder = run_ladder(cfg, agent, Settings(keep=1.01, rungs=(2, 4), restarts=1),
+                        agent_mean=0.0, random_mean=-10.0)
+    distilled = {(c.leaf_limit, c.relational): c.tree for c in ladder.candidates
+                 if c.stage == "distilled"}
+    first = seeded[0]  # the bisection's first probe: rung 2 of (2, 4)
+    assert feature_map_of(first[0]) is None  # axis-aligned first
+    assert any(feature_map_of(t) is not None for t in first)  # relational ones too
+    expected = [distilled[(rung, rel)] for rel in (False, True) for rung in (2, 4)]
+    assert [stages.tree_key(t) for t in first] == list(dict.fromkeys(
+        stages.tree_key(t) for t in expected))
+    assert any(c.stage == "searched" for c in ladder.candidates)
+
+
 def test_the_restarts_help_states_the_ladders_extra_restarts(capsys):
     from ibt.cli import build_parser
     from ibt.engine.ladder import EXTRA_RESTARTS

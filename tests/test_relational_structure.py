@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from sklearn.tree import DecisionTreeClassifier
 
 import ibt
-from ibt.bt.linear import FeatureMap
+from ibt.bt.linear import FeatureMap, LinearForm
 from ibt.distill.relational import (
     RelationalTreeClassifier,
     candidate_map,
@@ -19,7 +19,14 @@ from ibt.distill.relational import (
     scaled_candidate_map,
 )
 from ibt.refine.relational import augmented_task
-from ibt.refine.relational_structure import compact, evolve_relational, search_map, widen, winner
+from ibt.refine.relational_structure import (
+    compact,
+    evolve_relational,
+    search_map,
+    seed_columns,
+    widen,
+    winner,
+)
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.runs.relational_search import search_config
 from ibt.tasks.settings import EvolveConfig
@@ -56,6 +63,29 @@ def test_widen_reads_the_observed_columns_of_an_augmented_row():
     wide = widen(tree, fmap.width)
     assert wide.n_features == fmap.width
     assert np.array_equal(wide.predict(fmap.augment(x)), tree.predict(x))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10**6), st.integers(2, 12), st.integers(0, 10**6), st.integers(0, 6))
+def test_seed_columns_keep_every_seed_trees_decisions(tree_seed, leaves, seed, shared):
+    """A relational seed tree (its own derived columns, some among the candidates, some not)
+    and an axis-aligned one decide over the search's columns exactly as they did."""
+    own = FeatureMap(4, (LinearForm(0, 1, 1.0, 2.0), LinearForm(2, 3, 0.5, -1.0),
+                         *FeatureMap.pairs(4).forms[:shared]))
+    rng = np.random.default_rng(tree_seed)
+    x_fit = rng.normal(size=(400, 4)).astype(np.float32)
+    y = rng.integers(3, size=400)
+    relational = RelationalTreeClassifier(max_leaf_nodes=leaves, random_state=0).fit_relational(
+        x_fit, y, own)
+    axis = DecisionTreeClassifier(max_leaf_nodes=leaves, random_state=0).fit(x_fit, y)
+    candidates = FeatureMap.pairs(4)
+    columns, (wide_axis, wide_relational) = seed_columns([axis, relational], candidates)
+    assert columns.forms[:len(candidates.forms)] == candidates.forms  # candidates come first
+    assert set(own.forms) <= set(columns.forms) and len(set(columns.forms)) == columns.width - 4
+    x = np.random.default_rng(seed).normal(size=(300, 4)).astype(np.float32)
+    assert np.array_equal(wide_relational.predict(columns.augment(x)), relational.predict(x))
+    assert np.array_equal(wide_axis.predict(columns.augment(x)), axis.predict(x))
+    assert seed_columns([axis], candidates)[0] == candidates  # no relational seed: unchanged
 
 
 def test_the_augmented_task_gives_the_expert_observations():

@@ -269,10 +269,12 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
                if c.leaf_limit == kept and keeps(c, settings)]
     below = [r for r in settings.rungs if r in distilled and (kept is None or r < kept)]
     learner = search_learner(learners)
+    seeded = learners if learner == "relational" else ("axis",)  # the search's seed trees
     largest = max(distilled)
 
     def probe(leaves: int, last: bool = False) -> bool:
-        sources = _distinct([distilled[leaves]["axis"], distilled[largest]["axis"]])
+        sources = _distinct([distilled[rung][name] for name in seeded
+                             for rung in (leaves, largest)])
         # the ladder's last step (no probe follows, nothing to refine after it) spends the
         # time left on further restarts, until one reaches the target
         final = last and kept is None and deadline.seconds is not None

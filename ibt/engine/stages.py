@@ -323,10 +323,8 @@ def evolve_one(cfg: Config, agent: Agent, sources: list[Any], config: Any, seed:
     def compute() -> Any:
         if relational:
             from ibt.refine.relational_structure import evolve_relational
-            from ibt.refine.tree_arrays import TreeArrays
 
-            return evolve_relational([TreeArrays.from_sklearn(t) for t in sources], task,
-                                     config, seed, expert=expert(),
+            return evolve_relational(sources, task, config, seed, expert=expert(),
                                      scaled_weights=scaled_weights, progress=cfg.progress)
         from ibt.refine.structure import evolve
 

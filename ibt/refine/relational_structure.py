@@ -5,7 +5,9 @@ return. Here it searches over *augmented* columns: the observed features and eve
 ``w1 * x_i + w2 * x_j`` of the relational learner (:func:`ibt.distill.relational.candidate_map`:
 every pair of non-binary features with every weight pair of
 :data:`ibt.bt.linear.DEFAULT_WEIGHTS`). Nothing else changes: the same seed trees (axis-aligned
-trees read as trees over the augmented columns), mutations, budget, common random episodes and
+trees read as trees over the augmented columns; a relational seed tree, e.g. the relational
+learner's, read with its derived columns added to the candidates where they are not among
+them: :func:`seed_columns`), mutations, budget, common random episodes and
 held-out choice; "change a feature" and "grow" may now pick a relational column, and the
 expert's CART stump picks whichever column separates its labels best. So a comparison with
 Imitation-BT+S at the same leaf limit and budget measures what relational tests add.
@@ -20,6 +22,7 @@ columns it uses (:func:`compact`) and becomes a
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -28,6 +31,7 @@ from ibt.distill.relational import (
     RelationalTreeClassifier,
     as_relational,
     candidate_map,
+    feature_map_of,
     scaled_candidate_map,
 )
 from ibt.evaluate.rollouts import REFINE_SEED_BASE, rollout
@@ -65,14 +69,14 @@ def compact(tree: TreeArrays, feature_map: FeatureMap) -> tuple[TreeArrays, Feat
                        tree.samples, small.width, tree.n_actions), small)
 
 
-def search_map(task: Task, source: TreeArrays,
+def search_map(task: Task, source: TreeArrays | Any,
                weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS,
                scaled: bool = False) -> FeatureMap:
     """The candidate derived columns: every pair of the features that take more than two
-    values on the states ``source`` visits, with every weight pair (``scaled``: the second
-    weight scaled by the pair's ratio of spreads on those states,
-    :func:`ibt.distill.relational.scaled_candidate_map`)."""
-    tree = source.to_sklearn()
+    values on the states ``source`` (arrays or a fitted tree, relational or not) visits, with
+    every weight pair (``scaled``: the second weight scaled by the pair's ratio of spreads on
+    those states, :func:`ibt.distill.relational.scaled_candidate_map`)."""
+    tree = source.to_sklearn() if isinstance(source, TreeArrays) else source
     seeds = [CANDIDATE_SEED_BASE + i for i in range(CANDIDATE_EPISODES)]
     result = rollout(task, lambda obs: tree.predict(task.features(obs)), seeds,
                      n_envs=CANDIDATE_EPISODES, collect=True)
@@ -80,16 +84,46 @@ def search_map(task: Task, source: TreeArrays,
     return (scaled_candidate_map if scaled else candidate_map)(states, weights)
 
 
-def evolve_relational(sources: list[TreeArrays], task: Task, config: EvolveConfig,
+def seed_columns(sources: Sequence[TreeArrays | Any], candidates: FeatureMap
+                 ) -> tuple[FeatureMap, list[TreeArrays]]:
+    """The search's columns and its seed trees over them: ``candidates``, then each relational
+    seed tree's derived columns that are not among them (in the seeds' order); axis-aligned
+    seeds (arrays or fitted trees) are widened, relational ones renumbered. Without relational
+    seeds the columns are ``candidates`` unchanged."""
+    forms = list(candidates.forms)
+    for source in sources:
+        own = None if isinstance(source, TreeArrays) else feature_map_of(source)
+        forms += [f for f in (own.forms if own is not None else ()) if f not in forms]
+    columns = FeatureMap(candidates.n_features, tuple(forms))
+    trees = []
+    for source in sources:
+        own = None if isinstance(source, TreeArrays) else feature_map_of(source)
+        arrays = source if isinstance(source, TreeArrays) else TreeArrays.from_sklearn(source)
+        if own is None:
+            trees.append(widen(arrays, columns.width))
+            continue
+        column = [c if c < own.n_features else columns.n_features + forms.index(own.form(c))
+                  for c in range(own.width)]
+        split = arrays.left != LEAF
+        feature = np.where(split, np.take(column, np.where(split, arrays.feature, 0)),
+                           arrays.feature).astype(np.int64)
+        trees.append(TreeArrays(feature, arrays.threshold, arrays.left, arrays.right,
+                                arrays.action, arrays.samples, columns.width, arrays.n_actions))
+    return columns, trees
+
+
+def evolve_relational(sources: Sequence[TreeArrays | Any], task: Task, config: EvolveConfig,
                       seed: int = 0, *, expert: object | None = None,
                       weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS,
                       scaled_weights: bool = False, progress: bool = True) -> Evolution:
     """:func:`ibt.refine.structure.evolve` over the observed features and the candidate
-    relational columns; the record's ``config`` holds the candidate map (plain data)."""
-    fmap = search_map(task, sources[0], weights, scaled_weights)
+    relational columns (those of the states the first seed tree visits, and the relational
+    seed trees' own); the record's ``config`` holds the columns' map (plain data)."""
+    sources = [s if isinstance(s, TreeArrays) or feature_map_of(s) is not None
+               else TreeArrays.from_sklearn(s) for s in sources]
+    fmap, seeds = seed_columns(sources, search_map(task, sources[0], weights, scaled_weights))
     wide = augmented_task(task, fmap)
-    record = evolve([widen(s, fmap.width) for s in sources], wide, config, seed,
-                    expert=expert, progress=progress)
+    record = evolve(seeds, wide, config, seed, expert=expert, progress=progress)
     record.config[FEATURE_MAP_KEY] = fmap.to_json()
     return record
 
@@ -108,5 +142,5 @@ def winner(record: Evolution) -> RelationalTreeClassifier:
     return as_relational(tree.to_sklearn(), small)
 
 
-__all__ = ["compact", "evolve_relational", "reselect_relational", "search_map", "widen",
-           "winner"]
+__all__ = ["compact", "evolve_relational", "reselect_relational", "search_map", "seed_columns",
+           "widen", "winner"]
