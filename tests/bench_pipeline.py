@@ -139,6 +139,7 @@ def run(case: Case) -> dict[str, object]:
         row.update(full_ladder(case, out / "cache", int(match.group(1))))
     if match:
         row.update(search_speed(out / "cache"))
+        row.update(search_choices(out / "report.md"))
     if case.confirm and match:
         row.update(confirm(case, out / "bt.json", case.confirm))
     return row
@@ -158,6 +159,22 @@ def search_speed(cache: Path) -> dict[str, object]:
         return {}
     return {"search_restarts": len(ratios), "search_speed_vs_random_min": round(min(ratios), 2),
             "search_speed_vs_random_mean": round(sum(ratios) / len(ratios), 2)}
+
+
+SEARCH = re.compile(r"Search at leaf limit (\d+) [^:]*: \d+ restarts chosen among on \d+ "
+                    r"held-out episodes of their own \(([^)]*)\); seed (\d+) won")
+
+
+def search_choices(report: Path) -> dict[str, object]:
+    """Each search's restarts' means on its choice episodes and the seed that won, read from
+    the run's report (``leaves: mean;mean;...``, searches apart by ``|``)."""
+    found = SEARCH.findall(" ".join(report.read_text().split())) if report.exists() else []
+    if not found:
+        return {}
+    return {"search_choice_means": " | ".join(
+                f"{leaves}: " + ";".join(m.split(": ")[1] for m in means.split(", "))
+                for leaves, means, _ in found),
+            "search_winners": ";".join(seed for *_, seed in found)}
 
 
 def confirm(case: Case, bt_file: Path, n: int) -> dict[str, object]:
