@@ -245,7 +245,7 @@ def write_row(row: dict[str, object]) -> None:
         fcntl.flock(lock, fcntl.LOCK_EX)
         frame = pd.DataFrame([row])
         if CSV.exists():
-            old = pd.read_csv(CSV)
+            old = pd.read_csv(CSV, dtype={"search_winners": str})  # seeds, ``;``-joined
             frame = pd.concat([old[old["case"] != row["case"]], frame], ignore_index=True)
         order = {c.name: i for i, c in enumerate(CASES)}
         frame = frame.sort_values("case", key=lambda s: s.map(order)).reset_index(drop=True)
