@@ -90,14 +90,13 @@ def seed_columns(sources: Sequence[TreeArrays | Any], candidates: FeatureMap
     seed tree's derived columns that are not among them (in the seeds' order); axis-aligned
     seeds (arrays or fitted trees) are widened, relational ones renumbered. Without relational
     seeds the columns are ``candidates`` unchanged."""
+    maps = [None if isinstance(s, TreeArrays) else feature_map_of(s) for s in sources]
     forms = list(candidates.forms)
-    for source in sources:
-        own = None if isinstance(source, TreeArrays) else feature_map_of(source)
+    for own in maps:
         forms += [f for f in (own.forms if own is not None else ()) if f not in forms]
     columns = FeatureMap(candidates.n_features, tuple(forms))
     trees = []
-    for source in sources:
-        own = None if isinstance(source, TreeArrays) else feature_map_of(source)
+    for source, own in zip(sources, maps, strict=True):
         arrays = source if isinstance(source, TreeArrays) else TreeArrays.from_sklearn(source)
         if own is None:
             trees.append(widen(arrays, columns.width))
