@@ -21,7 +21,7 @@ columns it uses (:func:`compact`) and becomes a
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -52,7 +52,16 @@ def widen(tree: TreeArrays, width: int) -> TreeArrays:
     columns (observed columns come first, so nothing is renumbered)."""
     if tree.n_features > width:
         raise ValueError(f"a tree of {tree.n_features} features cannot be read as {width}")
-    return TreeArrays(tree.feature, tree.threshold, tree.left, tree.right, tree.action,
+    return renumber(tree, {}, width)
+
+
+def renumber(tree: TreeArrays, column: Mapping[int, int], width: int) -> TreeArrays:
+    """The same tree over ``width`` columns, each split reading ``column[c]`` where it read
+    ``c`` (a column not in ``column`` keeps its number)."""
+    split = tree.left != LEAF
+    feature = np.array([column.get(int(c), int(c)) if s else int(c)
+                        for c, s in zip(tree.feature, split, strict=True)], dtype=np.int64)
+    return TreeArrays(feature, tree.threshold, tree.left, tree.right, tree.action,
                       tree.samples, width, tree.n_actions)
 
 
@@ -61,12 +70,8 @@ def compact(tree: TreeArrays, feature_map: FeatureMap) -> tuple[TreeArrays, Feat
     n_axis = feature_map.n_features
     split = tree.left != LEAF
     used = sorted({int(c) for c in tree.feature[split] if c >= n_axis})
-    column = {c: n_axis + k for k, c in enumerate(used)}
-    feature = np.array([column.get(int(c), int(c)) if s else int(c)
-                        for c, s in zip(tree.feature, split, strict=True)], dtype=np.int64)
     small = FeatureMap(n_axis, tuple(feature_map.form(c) for c in used))
-    return (TreeArrays(feature, tree.threshold, tree.left, tree.right, tree.action,
-                       tree.samples, small.width, tree.n_actions), small)
+    return renumber(tree, {c: n_axis + k for k, c in enumerate(used)}, small.width), small
 
 
 def search_map(task: Task, source: TreeArrays | Any,
@@ -101,13 +106,9 @@ def seed_columns(sources: Sequence[TreeArrays | Any], candidates: FeatureMap
         if own is None:
             trees.append(widen(arrays, columns.width))
             continue
-        column = [c if c < own.n_features else columns.n_features + forms.index(own.form(c))
-                  for c in range(own.width)]
-        split = arrays.left != LEAF
-        feature = np.where(split, np.take(column, np.where(split, arrays.feature, 0)),
-                           arrays.feature).astype(np.int64)
-        trees.append(TreeArrays(feature, arrays.threshold, arrays.left, arrays.right,
-                                arrays.action, arrays.samples, columns.width, arrays.n_actions))
+        trees.append(renumber(arrays, {c: columns.n_features + forms.index(own.form(c))
+                                       for c in range(own.n_features, own.width)},
+                              columns.width))
     return columns, trees
 
 
@@ -141,5 +142,5 @@ def winner(record: Evolution) -> RelationalTreeClassifier:
     return as_relational(tree.to_sklearn(), small)
 
 
-__all__ = ["compact", "evolve_relational", "reselect_relational", "search_map", "seed_columns",
-           "widen", "winner"]
+__all__ = ["compact", "evolve_relational", "renumber", "reselect_relational", "search_map",
+           "seed_columns", "widen", "winner"]
