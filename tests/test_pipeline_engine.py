@@ -257,6 +257,12 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
     assert more.seeds == (0, 1, 2, 3, 4) and more.choice_means[:3] == whole.choice_means
     _, capped = stages.search(cfg, agent, sources, 4, 0, restarts=3, most=5)
     assert capped.seeds == (0, 1, 2)
+    # 3 restarts on 2 cores: one round of 3, not a round of 2 and a round of 1
+    rounds.clear()
+    _, folded = stages.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2,
+                              env_modules=TOY_LINE,
+                              next_round=lambda seconds: rounds.append(seconds) and False)
+    assert folded.seeds == (0, 1, 2) and len(rounds) == 1
     # ... and stop at the first restart that reached the target, never before the asked
     # restarts, on any number of cores
     for jobs in (1, 2):

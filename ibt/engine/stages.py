@@ -350,7 +350,9 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes, the
     best polished (CMA-ES on thresholds, then free pruning) and returned.
 
-    The restarts run in rounds of ``n_jobs`` (each restart cached on its own);
+    The restarts run in rounds of ``n_jobs`` (each restart cached on its own), the asked
+    restarts' remainder joining their last full round instead of a round of its own that would
+    leave cores idle (3 restarts on 2 cores: one round of 3, 1.5 rounds' time instead of 2);
     ``next_round(seconds)``, given the last round's wall time, says whether another round may
     start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
     with more time adds the others from the cache. With ``next_round``, rounds go on past
@@ -370,7 +372,9 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     trees: list[Any] = []
     means: list[float] = []
     while len(trees) < most:
-        batch = range(seed + len(trees), seed + min(most, len(trees) + width))
+        size = width + (restarts % width if len(trees) + width + restarts % width == restarts
+                        else 0)
+        batch = range(seed + len(trees), seed + min(most, len(trees) + size))
         began = time.monotonic()
         records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
                                              env_modules) for s in batch], n_jobs=n_jobs)
