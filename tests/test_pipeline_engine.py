@@ -225,6 +225,22 @@ def test_a_box_agent_gets_the_six_files_with_named_commands(thruster, tmp_path, 
     assert "structure search is for discrete actions" in report
 
 
+def test_a_box_ladders_blocks_of_rungs_on_two_cores_give_the_same_steps_and_bts(thruster,
+                                                                               tmp_path):
+    """Two cores and one learner: rungs 2 and 4 are distilled, then refined, together; the
+    steps, their order and the BTs are those of one core."""
+    from ibt.tasks.catalogue import resolve_task
+
+    agent = sb3_agent(resolve_task("Thruster-v0"), "sac", thruster / "sac.zip")
+    run = dict(budget=parse_budget("smoke"), full=True, leaf_limits=(2, 4), progress=False,
+               env_modules=("ibt_user_thruster",))
+    one = recommend(agent, cache_dir=tmp_path / "one", n_jobs=1, **run)
+    two = recommend(agent, cache_dir=tmp_path / "two", n_jobs=2, **run)
+    assert one.ladder.steps == two.ladder.steps == [
+        f"{verb} box at {leaves} leaves" for leaves in (2, 4) for verb in ("distil", "refine")]
+    assert [c.bt.to_json() for c in one.candidates] == [c.bt.to_json() for c in two.candidates]
+
+
 def test_a_rungs_learners_distilled_on_two_cores_give_the_same_trees(agents, tmp_path):
     from ibt.tasks.catalogue import resolve_task
 

@@ -232,18 +232,30 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
 def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
                       settings: Settings, learners: tuple[str, ...]) -> None:
     """Without the structure search (a Box task, or ``search=False``): at each rung, distil
-    then refine each learner; stop at the first rung that keeps the target."""
-    for leaves in settings.rungs:
-        for learner in learners:
-            tag = f"{learner} at {leaves} leaves"
-            tree = step(f"distil {tag}", partial(stages.distil, cfg, agent, leaves,
-                                                 settings.seed, learner),
-                        leaves, "distilled", learner)
-            step(f"refine {tag}", partial(stages.refine, cfg, agent, tree, settings.seed,
-                                          settings.scale, settings.refine_episodes),
-                 leaves, "refined", learner)
-        if _kept_at(out, leaves, settings) and not settings.full:
-            return
+    then refine each learner; stop at the first rung that keeps the target.
+
+    Cores beyond the learners work ahead: the rungs go in blocks of ``n_jobs // learners``
+    (a Box task's one learner on two cores: 4 and 8, then 16 and 32), the block's first steps
+    distilling, then refining, all of its trees at once; its other steps read them from the
+    cache. The same steps in the same order, the same trees: only the wall time changes (a
+    block's larger rung is done alongside even where the smaller one keeps the target)."""
+    rungs = list(settings.rungs)
+    width = max(1, settings.n_jobs // len(learners))
+    for block in (rungs[i:i + width] for i in range(0, len(rungs), width)):
+        for leaves in block:
+            for learner in learners:
+                tag = f"{learner} at {leaves} leaves"
+                ahead = leaves == block[0] and learner == learners[0]
+                tree = step(f"distil {tag}", partial(_distil_block, cfg, agent, block, settings,
+                                                     learners) if ahead else partial(
+                    stages.distil, cfg, agent, leaves, settings.seed, learner),
+                    leaves, "distilled", learner)
+                step(f"refine {tag}", partial(_refine_block, cfg, agent, block, settings,
+                                              learners, tree) if ahead else partial(
+                    stages.refine, cfg, agent, tree, settings.seed, settings.scale,
+                    settings.refine_episodes), leaves, "refined", learner)
+            if _kept_at(out, leaves, settings) and not settings.full:
+                return
 
 
 def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
@@ -256,7 +268,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
     distilled: dict[int, dict[str, Any]] = {}
     kept = None
     for leaves in settings.rungs:
-        first = partial(_distil_rung, cfg, agent, leaves, settings, learners)
+        first = partial(_distil_block, cfg, agent, [leaves], settings, learners)
         distilled[leaves] = {
             learner: step(f"distil {learner} at {leaves} leaves", first if i == 0 else partial(
                 stages.distil, cfg, agent, leaves, settings.seed, learner),
@@ -310,16 +322,33 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             settings.refine_episodes), leaves, "refined", name)
 
 
-def _distil_rung(cfg: Config, agent: Agent, leaves: int, settings: Settings,
-                 learners: tuple[str, ...]) -> Any:
-    """The first learner's tree at ``leaves``, its other learners' distilled alongside on the
-    local cores (their steps then read them from the cache)."""
-    if settings.n_jobs > 1 and len(learners) > 1:
+def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,
+                  learners: tuple[str, ...]) -> Any:
+    """The first learner's tree at the block's first rung, every learner's at every rung of
+    the block distilled alongside on the local cores (their steps then read the cache)."""
+    jobs = [(leaves, learner) for leaves in block for learner in learners]
+    if settings.n_jobs > 1 and len(jobs) > 1:
         quiet = replace(cfg, progress=False)
         parallel_map(stages.distil, [(quiet, agent, leaves, settings.seed, learner,
-                                      settings.env_modules) for learner in learners],
-                     n_jobs=min(settings.n_jobs, len(learners)))
-    return stages.distil(cfg, agent, leaves, settings.seed, learners[0])
+                                      settings.env_modules) for leaves, learner in jobs],
+                     n_jobs=min(settings.n_jobs, len(jobs)))
+    return stages.distil(cfg, agent, block[0], settings.seed, learners[0])
+
+
+def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,
+                  learners: tuple[str, ...], tree: Any) -> Any:
+    """``tree`` (the first learner's at the block's first rung) refined, every distilled
+    tree of the block refined alongside on the local cores (their steps then read the cache)."""
+    jobs = [(leaves, learner) for leaves in block for learner in learners]
+    if settings.n_jobs > 1 and len(jobs) > 1:
+        quiet = replace(cfg, progress=False)
+        trees = [stages.distil(quiet, agent, leaves, settings.seed, learner)
+                 for leaves, learner in jobs]  # read from the cache
+        parallel_map(stages.refine, [(quiet, agent, t, settings.seed, settings.scale,
+                                      settings.refine_episodes, settings.env_modules)
+                                     for t in trees], n_jobs=min(settings.n_jobs, len(jobs)))
+    return stages.refine(cfg, agent, tree, settings.seed, settings.scale,
+                         settings.refine_episodes)
 
 
 def search_learner(learners: tuple[str, ...]) -> str:

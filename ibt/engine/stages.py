@@ -251,11 +251,12 @@ def refinement_cached(cfg: Config, task: Task, algo: str, seed: int, source_meth
 
 
 def refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float = 1.0,
-           episodes: int | None = None) -> Any:
+           episodes: int | None = None, env_modules: tuple[str, ...] = ()) -> Any:
     """``tree`` refined by return (kinds ``refine``, ``refine-rel``, ``box-refine``): the
-    refinement's chosen tree."""
+    refinement's chosen tree. Runs in a worker process too (as :func:`distil`)."""
     from ibt.refine.commands import CommandArrays
 
+    _import_modules(env_modules)
     task = agent.task
     if isinstance(tree, CommandArrays):
         config = budgets.scaled_refine_config(cfg, task, scale, episodes, commands=True)

@@ -102,6 +102,12 @@ class Expert:
         self.model = model
         self.obs_norm = obs_norm
         self.continuous = task.continuous
+        self._device: Any = None  # the policy's device, looked up once
+        from gymnasium import spaces
+
+        space = getattr(model, "observation_space", None)
+        self._flat_shape = (tuple(space.shape) if isinstance(space, spaces.Box)
+                            and len(space.shape) == 1 else None)
         self.n_actions = (int(np.prod(model.action_space.shape)) if self.continuous
                           else int(model.action_space.n))
 
@@ -112,6 +118,15 @@ class Expert:
             std = np.sqrt(np.asarray(self.obs_norm["var"]) + self.obs_norm["epsilon"])
             obs = np.clip((obs - mean) / std, -self.obs_norm["clip"], self.obs_norm["clip"])
             obs = obs.astype(np.float32)
+        if self._flat_shape is not None:
+            # obs_to_tensor's own steps for a flat Box (array, batch shape, as_tensor), without
+            # its device lookup, which walks the parameters on every call
+            import torch
+
+            if self._device is None:
+                self._device = self.model.policy.device
+            return torch.as_tensor(np.array(obs).reshape((-1, *self._flat_shape)),
+                                   device=self._device)
         tensor, _ = self.model.policy.obs_to_tensor(obs)
         return tensor
 
@@ -171,7 +186,15 @@ class Expert:
         with torch.no_grad():
             tensor = self._obs_tensor(obs)
             policy = self.model.policy
-            if self.algo in ("sac", "td3"):  # a squashed Gaussian's mean; TD3's own actor
+            if self.algo == "sac" and not policy.actor.use_sde:
+                # the actor's deterministic action, tanh of its Gaussian's mean, without the
+                # log-std head and the distribution it builds: the same operations on the mean,
+                # so the numbers are bit-identical (``policy.actor(tensor, deterministic=True)``)
+                actor = policy.actor
+                features = actor.extract_features(tensor, actor.features_extractor)
+                scaled = torch.tanh(actor.mu(actor.latent_pi(features))).cpu().numpy()
+                actions = policy.unscale_action(scaled)
+            elif self.algo in ("sac", "td3"):  # a squashed Gaussian's mean; TD3's own actor
                 keywords = {"deterministic": True} if self.algo == "sac" else {}
                 scaled = policy.actor(tensor, **keywords).cpu().numpy()
                 actions = policy.unscale_action(scaled)
