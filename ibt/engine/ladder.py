@@ -22,7 +22,8 @@ search runs where relational tests are on: its columns are the observed features
 relational candidates, so it covers the axis-aligned trees too.
 
 Without the search (a Box task's regression trees, or ``search=False``) each rung is
-distilled then refined, smallest first, up to the first rung that keeps the target.
+distilled then refined, smallest first, up to the first rung that keeps the target; cores
+beyond the learners work ahead, distilling and refining the next rungs alongside.
 
 The ladder is anytime: between steps (each one cached whole) it checks the deadline and the
 caller's ``on_step`` callback, and it does not start a step when the longest step of its kind
