@@ -137,3 +137,26 @@ def test_committed_box_expert_acts_in_its_box(task, algo):
     assert np.array_equal(labels, actions) and np.isfinite(weights).all() and (weights >= 0).all()
     with pytest.raises(TypeError, match="Box"):
         expert.scores(obs)
+
+
+@pytest.mark.parametrize(("task", "algo"), BOX_COMMITTED)
+def test_box_actions_and_tensors_are_sb3s_to_the_bit(task, algo):
+    """The expert's own short paths (the SAC actor's tanh of its mean without building the
+    distribution; a flat observation's tensor without the device lookup) give SB3's numbers
+    exactly, for a labelling call's batch (2) and a rollout's (64)."""
+    import torch
+
+    spec = get_task(task)
+    expert = load_expert(spec, algo)
+    policy = expert.model.policy
+    obs = np.random.default_rng(3).uniform(-1, 1, size=(64, spec.n_features)).astype(np.float32)
+    for batch in (obs[:2], obs):
+        tensor = expert._obs_tensor(batch)
+        assert torch.equal(tensor, policy.obs_to_tensor(batch)[0])
+        with torch.no_grad():
+            if algo == "sac":
+                raw = policy.unscale_action(policy.actor(tensor, deterministic=True).numpy())
+            else:
+                raw = policy.get_distribution(tensor).get_actions(deterministic=True).numpy()
+        reference = np.clip(raw, spec.action_low, spec.action_high).astype(np.float32)
+        assert np.array_equal(expert.act(batch), reference)
