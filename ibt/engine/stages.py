@@ -373,8 +373,8 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     trees: list[Any] = []
     means: list[float] = []
     while len(trees) < most:
-        size = width + (restarts % width if len(trees) + width + restarts % width == restarts
-                        else 0)
+        left = restarts - len(trees)  # asked restarts not yet run
+        size = left if width < left < 2 * width else width
         batch = range(seed + len(trees), seed + min(most, len(trees) + size))
         began = time.monotonic()
         records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
