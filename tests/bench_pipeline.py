@@ -162,18 +162,23 @@ def search_speed(cache: Path) -> dict[str, object]:
 
 
 SEARCH = re.compile(r"Search at leaf limit (\d+) [^:]*: \d+ restarts chosen among on \d+ "
-                    r"held-out episodes of their own \(([^)]*)\); seed (\d+) won")
+                    r"held-out episodes of their own \(([^)]*)\); the best \d+ polished "
+                    r"scored \(([^)]*)\) there; seed (\d+) won")
 
 
 def search_choices(report: Path) -> dict[str, object]:
-    """Each search's restarts' means on its choice episodes and the seed that won, read from
-    the run's report (``leaves: mean;mean;...``, searches apart by ``|``)."""
+    """Each search's restarts' means on its choice episodes, the polished ones' (``seed:
+    mean``) and the seed that won, read from the run's report (``leaves: mean;mean;...``,
+    searches apart by ``|``)."""
     found = SEARCH.findall(" ".join(report.read_text().split())) if report.exists() else []
     if not found:
         return {}
     return {"search_choice_means": " | ".join(
                 f"{leaves}: " + ";".join(m.split(": ")[1] for m in means.split(", "))
-                for leaves, means, _ in found),
+                for leaves, means, *_ in found),
+            "search_polished_means": " | ".join(
+                f"{leaves}: " + ";".join(m.replace("seed ", "") for m in polished.split(", "))
+                for leaves, _, polished, _ in found),
             "search_winners": ";".join(seed for *_, seed in found)}
 
 

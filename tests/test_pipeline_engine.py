@@ -279,6 +279,13 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
                               env_modules=TOY_LINE,
                               next_round=lambda seconds: rounds.append(seconds) and False)
     assert folded.seeds == (0, 1, 2) and len(rounds) == 1
+    # the asked restarts' best are polished, and the choice is made among them, polished
+    assert folded.polished == tuple(sorted(folded.seeds, key=lambda s: -folded.choice_means[s]))
+    assert folded.seeds[folded.chosen] == folded.polished[
+        max(range(3), key=lambda k: folded.polished_means[k])]
+    assert (folded.polished, folded.polished_means) == (whole.polished, whole.polished_means)
+    assert len(more.polished) == 3 and more.polished[0] == max(
+        more.seeds, key=lambda s: more.choice_means[s])
     # ... and stop at the first restart that reached the target, never before the asked
     # restarts, on any number of cores
     for jobs in (1, 2):
@@ -291,6 +298,13 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
                                env_modules=TOY_LINE,
                                next_round=lambda seconds: True, enough=second)
     assert reached.choice_means[-1] >= second > max(reached.choice_means[:-1], default=-1e9)
+
+
+@pytest.mark.parametrize("n_jobs, items, processes", [(2, 3, 3), (2, 2, 2), (1, 3, 1),
+                                                       (2, 4, 2), (4, 5, 5), (4, 9, 4)])
+def test_a_round_of_fewer_than_twice_the_cores_runs_a_process_each(n_jobs, items, processes):
+    """3 restarts on 2 cores share them as 3 processes (1.5 rounds' time), not 2 and then 1."""
+    assert stages._processes(n_jobs, items) == processes
 
 
 @pytest.mark.parametrize("seconds, rungs, most", [(3600.0, (4,), 8), (None, (4,), None),

@@ -296,8 +296,9 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             stages.search, cfg, agent, sources, leaves, settings.seed,
             restarts=settings.restarts, relational=learner == "relational",
             scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules,
-            # another round, then the polish of the winner (measured on LunarLander at 0.6-0.7
-            # of a round), must fit in the time left
+            # another round, then the polishes of the best restarts (one polish measured on
+            # LunarLander at 0.6-0.7 of a round; 3 sharing 2 cores about one round), must fit
+            # in the time left
             next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most,
             enough=target if final else None),
             leaves, "searched", learner)

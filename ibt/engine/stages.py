@@ -9,7 +9,7 @@ A stage takes the :class:`~ibt.engine.agent.Agent` and plain settings and return
 * :func:`search`: the structure search by return (Imitation-BT+S, or +SR with relational
   tests), ``restarts`` seeds mapped over cores or a Dask cluster
   (:func:`ibt.engine.parallel.parallel_map`), one of them chosen on held-out episodes of
-  its own (never the final ones), then polished;
+  its own (never the final ones) after the best of them are polished;
 * :func:`measure`: a tree's returns on a block of held-out episodes (its verified BTs, every
   registered synthesiser's, are the synthesis stage's: :mod:`ibt.engine.synthesis`).
 
@@ -281,6 +281,8 @@ class SearchInfo:
     choice_episodes: int
     choice_means: tuple[float, ...]
     chosen: int  # index into seeds
+    polished: tuple[int, ...] = ()  # the seeds polished, best choice mean first
+    polished_means: tuple[float, ...] = ()  # theirs, polished, on the same episodes
 
 
 def evolve_key(agent: Agent, sources: list[Any], config: Any, seed: int, relational: bool, *,
@@ -348,12 +350,15 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
            next_round: Callable[[float], bool] | None = None,
            most: int | None = None, enough: float | None = None) -> tuple[Any, SearchInfo]:
     """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
-    ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes, the
-    best polished (CMA-ES on thresholds, then free pruning) and returned.
+    ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes; the
+    best ``restarts`` of them polished (CMA-ES on thresholds, then free pruning), scored again
+    there, and the best polished tree returned: a polish can move a restart's return by more
+    than the restarts differ, so the choice is made after it.
 
     The restarts run in rounds of ``n_jobs`` (each restart cached on its own), the asked
     restarts' remainder joining their last full round instead of a round of its own that would
-    leave cores idle (3 restarts on 2 cores: one round of 3, 1.5 rounds' time instead of 2);
+    leave cores idle: 3 restarts on 2 cores are one round of 3 processes sharing the 2 cores,
+    1.5 rounds' time instead of 2 (the polishes likewise);
     ``next_round(seconds)``, given the last round's wall time, says whether another round may
     start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
     with more time adds the others from the cache. With ``next_round``, rounds go on past
@@ -362,7 +367,6 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     any number of cores); each round runs at most ``n_jobs`` seeds."""
     from ibt.engine.parallel import parallel_map
     from ibt.evaluate.policies import TreePolicy
-    from ibt.refine.relational import best_tree
 
     task = agent.task
     config = budgets.search_config(cfg, task, leaves, scale)
@@ -378,7 +382,8 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
         batch = range(seed + len(trees), seed + min(most, len(trees) + size))
         began = time.monotonic()
         records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
-                                             env_modules) for s in batch], n_jobs=n_jobs)
+                                             env_modules) for s in batch],
+                               n_jobs=_processes(n_jobs, len(batch)))
         seconds = time.monotonic() - began
         for record in records:
             tree = _restart_winner(record, relational)
@@ -393,11 +398,35 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
         if next_round is not None and not next_round(seconds):
             break
     seeds = tuple(seed + r for r in range(len(trees)))
-    chosen = max(range(len(trees)), key=lambda i: (means[i], -leaves_of(trees[i]), -i))
-    polish = refinement_cached(cfg, task, agent.algo, seeds[chosen],
-                               SEARCHED_REL if relational else SEARCHED, trees[chosen],
-                               budgets.polish_config(cfg, config))
-    return best_tree(polish), SearchInfo(seeds, len(choice), tuple(means), chosen)
+    finalists = sorted(range(len(trees)),
+                       key=lambda i: (-means[i], leaves_of(trees[i]), i))[:restarts]
+    method, settings = SEARCHED_REL if relational else SEARCHED, budgets.polish_config(cfg, config)
+    polished = parallel_map(polish_one, [(quiet, agent, seeds[i], method, trees[i], settings,
+                                          env_modules) for i in finalists],
+                            n_jobs=_processes(n_jobs, len(finalists)))
+    scores = [returns_of(cfg, task, {"tree": tree_key(tree)},
+                         lambda t=tree: TreePolicy(task, t).act, choice).mean
+              for tree in polished]
+    best = max(range(len(finalists)),
+               key=lambda k: (scores[k], -leaves_of(polished[k]), -finalists[k]))
+    return polished[best], SearchInfo(seeds, len(choice), tuple(means), finalists[best],
+                                      tuple(seeds[i] for i in finalists), tuple(scores))
+
+
+def polish_one(cfg: Config, agent: Agent, seed: int, method: str, tree: Any, config: Any,
+               env_modules: tuple[str, ...] = ()) -> Any:
+    """One restart's winner polished (a cached refinement): its best tree. Runs in a worker
+    process too."""
+    from ibt.refine.relational import best_tree
+
+    _import_modules(env_modules)
+    return best_tree(refinement_cached(cfg, agent.task, agent.algo, seed, method, tree, config))
+
+
+def _processes(n_jobs: int, items: int) -> int:
+    """Processes for one round of ``items`` on ``n_jobs`` cores: one each where a round holds
+    fewer than twice the cores (a folded round shares them), else ``n_jobs``."""
+    return items if 1 < n_jobs < items < 2 * n_jobs else n_jobs
 
 
 def _restart_winner(record: Any, relational: bool) -> Any:

@@ -189,10 +189,13 @@ def ladder_text(rec: Recommendation) -> list[str]:
             means = ", ".join(f"seed {s}: {m:.2f}" for s, m in zip(c.search.seeds,
                                                                   c.search.choice_means,
                                                                   strict=True))
+            polished = ", ".join(f"seed {s}: {m:.2f}" for s, m in zip(
+                c.search.polished, c.search.polished_means, strict=True))
             lines += [f"Search at leaf limit {c.leaf_limit} ({c.label}): {len(c.search.seeds)} "
                       f"restarts chosen among on {c.search.choice_episodes} held-out episodes "
-                      f"of their own ({means}); seed {c.search.seeds[c.search.chosen]} won and "
-                      "was polished.", ""]
+                      f"of their own ({means}); the best {len(c.search.polished)} polished "
+                      f"scored ({polished}) there; seed {c.search.seeds[c.search.chosen]} won.",
+                      ""]
     lines += [f"Note: {note}." for note in ladder.notes]
     if rec.max_nodes is not None:
         lines += [f"Only BTs of at most {rec.max_nodes} nodes could be recommended "
