@@ -40,6 +40,10 @@ LEARNERS = ("axis", "relational", "box")
 #: 10,000 seeds: the distillation's choice uses the first, refinement's 5,000 and up, the
 #: search's own choice 7,000 and up)
 RESTART_CHOICE_OFFSET = 8_500
+#: the restarts' choice episodes, as a multiple of the search's own selection episodes (1,000
+#: on LunarLander): with 100, the choice's standard error (5-9 there) was as large as the gaps
+#: between restarts, and scoring a small tree on 1,000 episodes takes seconds
+RESTART_CHOICE_FACTOR = 10
 SEARCHED = "imitation-bt+s"  # the polish's source method: ibt.runs.front.STRUCTURE
 SEARCHED_REL = "imitation-bt+sr"  # ibt.runs.relational_search.METHOD
 
@@ -350,7 +354,8 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
            next_round: Callable[[float], bool] | None = None,
            most: int | None = None, enough: float | None = None) -> tuple[Any, SearchInfo]:
     """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
-    ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes; the
+    ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes
+    (:data:`RESTART_CHOICE_FACTOR` times the search's own selection episodes); the
     best ``restarts`` of them polished (CMA-ES on thresholds, then free pruning), scored again
     there, and the best polished tree returned: a polish can move a restart's return by more
     than the restarts differ, so the choice is made after it.
@@ -366,14 +371,15 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     up to the first restart whose choice mean reaches ``enough`` (the target; the same seeds on
     any number of cores); each round runs at most ``n_jobs`` seeds."""
     from ibt.engine.parallel import parallel_map
-    from ibt.evaluate.policies import TreePolicy
 
     task = agent.task
     config = budgets.search_config(cfg, task, leaves, scale)
     most = restarts if next_round is None else max(restarts, most or restarts)
     quiet = replace(cfg, progress=cfg.progress and most == 1)
     width = max(1, min(n_jobs, most))
-    choice = selection_seeds(config.selection_episodes, seed, offset=RESTART_CHOICE_OFFSET)
+    choice = selection_seeds(min(RESTART_CHOICE_FACTOR * config.selection_episodes,
+                                 10_000 - RESTART_CHOICE_OFFSET), seed,
+                             offset=RESTART_CHOICE_OFFSET)
     trees: list[Any] = []
     means: list[float] = []
     while len(trees) < most:
@@ -385,11 +391,11 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
                                              env_modules) for s in batch],
                                n_jobs=_processes(n_jobs, len(batch)))
         seconds = time.monotonic() - began
-        for record in records:
-            tree = _restart_winner(record, relational)
-            trees.append(tree)
-            means.append(returns_of(cfg, task, {"tree": tree_key(tree)},
-                                    lambda t=tree: TreePolicy(task, t).act, choice).mean)
+        done = [_restart_winner(record, relational) for record in records]
+        trees += done
+        means += parallel_map(choice_mean, [(cfg, agent, tree, choice, env_modules)
+                                            for tree in done],
+                              n_jobs=_processes(n_jobs, len(done)))
         reached = [i for i in range(restarts - 1, len(trees))
                    if enough is not None and means[i] >= enough]
         if reached:  # the restarts up to the first that reached it, whatever the round width
@@ -404,9 +410,9 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     polished = parallel_map(polish_one, [(quiet, agent, seeds[i], method, trees[i], settings,
                                           env_modules) for i in finalists],
                             n_jobs=_processes(n_jobs, len(finalists)))
-    scores = [returns_of(cfg, task, {"tree": tree_key(tree)},
-                         lambda t=tree: TreePolicy(task, t).act, choice).mean
-              for tree in polished]
+    scores = parallel_map(choice_mean, [(cfg, agent, tree, choice, env_modules)
+                                        for tree in polished],
+                          n_jobs=_processes(n_jobs, len(polished)))
     best = max(range(len(finalists)),
                key=lambda k: (scores[k], -leaves_of(polished[k]), -finalists[k]))
     return polished[best], SearchInfo(seeds, len(choice), tuple(means), finalists[best],
@@ -421,6 +427,18 @@ def polish_one(cfg: Config, agent: Agent, seed: int, method: str, tree: Any, con
 
     _import_modules(env_modules)
     return best_tree(refinement_cached(cfg, agent.task, agent.algo, seed, method, tree, config))
+
+
+def choice_mean(cfg: Config, agent: Agent, tree: Any, seeds: list[int],
+                env_modules: tuple[str, ...] = ()) -> float:
+    """A tree's mean return on held-out choice episodes (cached). Runs in a worker process
+    too."""
+    from ibt.evaluate.policies import TreePolicy
+
+    _import_modules(env_modules)
+    task = agent.task
+    return returns_of(cfg, task, {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act,
+                      seeds).mean
 
 
 def _processes(n_jobs: int, items: int) -> int:
