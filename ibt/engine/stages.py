@@ -31,7 +31,13 @@ from typing import Any
 from ibt.cache.store import load_or_compute, tree_digest
 from ibt.engine import budgets
 from ibt.engine.agent import Agent
-from ibt.evaluate.rollouts import FINAL_SEED_BASE, ReturnStats, rollout, selection_seeds
+from ibt.evaluate.rollouts import (
+    FINAL_SEED_BASE,
+    SELECTION_BLOCK,
+    ReturnStats,
+    rollout,
+    selection_seeds,
+)
 from ibt.profiles import Config
 from ibt.tasks.task import Task
 
@@ -378,7 +384,7 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     quiet = replace(cfg, progress=cfg.progress and most == 1)
     width = max(1, min(n_jobs, most))
     choice = selection_seeds(min(RESTART_CHOICE_FACTOR * config.selection_episodes,
-                                 10_000 - RESTART_CHOICE_OFFSET), seed,
+                                 SELECTION_BLOCK - RESTART_CHOICE_OFFSET), seed,
                              offset=RESTART_CHOICE_OFFSET)
     trees: list[Any] = []
     means: list[float] = []

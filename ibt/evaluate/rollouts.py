@@ -24,6 +24,7 @@ SELECTION_SEED_BASE = 2_000_000  # best-tree selection (held out from training a
 TRAIN_SEED_BASE = 3_000_000  # distillation rollouts
 REFINE_SEED_BASE = 10_000_000  # refinement by return (1,000,000 per run seed)
 REFINE_SELECTION_OFFSET = 5_000  # refinement's held-out choice: selection seeds 5,000 and up
+SELECTION_BLOCK = 10_000  # each run seed's block of selection seeds
 
 
 def final_seeds(n: int) -> list[int]:
@@ -33,9 +34,10 @@ def final_seeds(n: int) -> list[int]:
 
 def selection_seeds(n: int, run_seed: int, offset: int = 0) -> list[int]:
     """Held-out episodes for choosing among candidates (``offset`` keeps uses apart)."""
-    if not (0 <= offset and offset + n <= 10_000):
-        raise ValueError(f"selection seeds {offset}..{offset + n} leave the run's block of 10,000")
-    return [SELECTION_SEED_BASE + 10_000 * run_seed + offset + i for i in range(n)]
+    if not (0 <= offset and offset + n <= SELECTION_BLOCK):
+        raise ValueError(f"selection seeds {offset}..{offset + n} leave the run's block of "
+                         f"{SELECTION_BLOCK:,}")
+    return [SELECTION_SEED_BASE + SELECTION_BLOCK * run_seed + offset + i for i in range(n)]
 
 
 class ReturnStats:
