@@ -437,14 +437,10 @@ def polish_one(cfg: Config, agent: Agent, seed: int, method: str, tree: Any, con
 
 def choice_mean(cfg: Config, agent: Agent, tree: Any, seeds: list[int],
                 env_modules: tuple[str, ...] = ()) -> float:
-    """A tree's mean return on held-out choice episodes (cached). Runs in a worker process
-    too."""
-    from ibt.evaluate.policies import TreePolicy
-
+    """A searched tree's mean return on held-out choice episodes (:func:`measure`, cached).
+    Runs in a worker process too."""
     _import_modules(env_modules)
-    task = agent.task
-    return returns_of(cfg, task, {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act,
-                      seeds).mean
+    return measure(cfg, agent, tree, {}, seeds).mean
 
 
 def _processes(n_jobs: int, items: int) -> int:
