@@ -27,16 +27,13 @@ beyond the learners work ahead, distilling and refining the next rungs alongside
 
 The ladder is anytime: between steps (each one cached whole) it checks the deadline and the
 caller's ``on_step`` callback, and it does not start a step when the longest step of its kind
-so far took longer than the time left (it would run past the budget), nor the first step of a
-kind (a search, a refinement) whose expected length, its episodes at the seconds an episode
-the run's own measurements took, exceeds ``EXPECTED_OVERRUN`` times the time left (a rough
-estimate: a step that starts may end past the budget, by half its expected length where the
-estimate holds), nor another round of a search's restarts unless twice the last round (the
-round, then the polish) fits. The last search the bisection can make spends the time left over
-on further restarts (up to ``EXTRA_RESTARTS`` times the asked number, until a restart reaches
-the target), since nothing after it needs the time. Ctrl-C or SIGTERM inside a step ends that
-step unfinished (nothing of it is cached) and the ladder returns what it has, marked as
-stopped. A rerun with a longer deadline resumes from the cache.
+so far took longer than the time left (it would run past the budget), nor another round of a
+search's restarts unless twice the last round (the round, then the polish) fits. The last
+search the bisection can make spends the time left over on further restarts (up to
+``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target), since nothing
+after it needs the time. Ctrl-C or SIGTERM inside a step ends that step unfinished (nothing of
+it is cached) and the ladder returns what it has, marked as stopped. A rerun with a longer
+deadline resumes from the cache.
 """
 
 from __future__ import annotations
@@ -47,7 +44,7 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
-from ibt.engine import budgets, stages, synthesis
+from ibt.engine import stages, synthesis
 from ibt.engine.agent import Agent
 from ibt.engine.parallel import parallel_map
 from ibt.evaluate.rollouts import retention_norm
@@ -101,13 +98,6 @@ class Candidate:
                 **{f"nodes_{m}": bt.node_count for m, bt in self.bts.items()},
                 "mean_return": self.mean_return, "retention_norm": self.retention}
 
-
-#: a step whose length is not yet known from one of its kind is not started where its expected
-#: length (its episodes at the run's measured seconds an episode) exceeds this many times the
-#: time left: the estimate is rough (episode lengths vary with the tree), and on LunarLander's
-#: 30-minute runs the first search was expected at about 1.15 times the time left and ended
-#: 0-40 s past the budget, with the run's best BT (a factor chosen after seeing those runs)
-EXPECTED_OVERRUN = 2.0
 
 #: on the ladder's last search, with a deadline, restarts go on up to this many times the
 #: asked number while another round and the polish fit in the time left and none reached the
@@ -193,13 +183,10 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     learners = learners_of(agent, settings.relational)
     choice = stages.held_out(cfg.final_episodes, 0)
     took: dict[str, float] = {}  # each kind of step's longest wall time (distil, refine, search)
-    rolled = [0.0, 0]  # seconds and episodes of the choice episodes rolled out (not cached)
     running: list[str] = []  # the step under way (what a signal cuts short)
 
     def step(name: str, make: Callable[[], Any], leaves: int, stage: str, learner: str,
-             info: Any = None, episodes: float = 0.0) -> Any:
-        """Run one cached step, then measure its tree; ``episodes``: its least length in
-        episodes of one core's wall time (a search's, a refinement's), for the deadline."""
+             info: Any = None) -> Any:
         if deadline.passed():
             raise Stopped("time")
         kind = name.split()[0]
@@ -208,32 +195,16 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
             out.notes.append(f"the ladder stopped before \"{name}\": the longest {kind} step "
                              f"took {took[kind]:.0f} s and {left:.0f} s of the budget were left")
             raise Stopped("time")
-        rate = rolled[0] / rolled[1] if rolled[1] and deadline.seconds is not None else 0.0
-        expected = episodes * rate if kind not in took else 0.0
-        if expected > EXPECTED_OVERRUN * left:
-            out.notes.append(f"the ladder stopped before \"{name}\": about {expected:.0f} s "
-                             f"expected ({episodes:,.0f} episodes at the {rate:.3g} s an "
-                             f"episode measured in this run) and {left:.0f} s of the budget "
-                             "were left")
-            raise Stopped("time")
         reason = on_step(out, name) if on_step is not None else None
         if reason:
             raise Stopped(reason)
         began, running[:] = deadline.clock(), [name]
         made = make()
-        seconds = deadline.clock() - began
-        if expected:
-            out.notes.append(f"\"{name}\" took {seconds:.0f} s, about {expected:.0f} s "
-                             "expected from its episodes")
-        took[kind] = max(took.get(kind, 0.0), seconds)
+        took[kind] = max(took.get(kind, 0.0), deadline.clock() - began)
         running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
         bts = synthesis.synthesise(cfg, agent, tree, settings.seed)
-        began = deadline.clock()
         ret = stages.measure(cfg, agent, tree, bts, choice)
-        if ret.computed:
-            rolled[0] += deadline.clock() - began
-            rolled[1] += len(choice)
         out.candidates.append(Candidate(
             leaves, stage, tree, bts, ret.mean, ret.std,
             _retention(ret.mean, agent_mean, random_mean), learner == "relational", info))
@@ -283,8 +254,7 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
                 step(f"refine {tag}", partial(_refine_block, cfg, agent, block, settings,
                                               learners, tree) if ahead else partial(
                     stages.refine, cfg, agent, tree, settings.seed, settings.scale,
-                    settings.refine_episodes), leaves, "refined", learner,
-                    episodes=_refine_length(cfg, agent, settings))
+                    settings.refine_episodes), leaves, "refined", learner)
             if _kept_at(out, leaves, settings) and not settings.full:
                 return
 
@@ -331,9 +301,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             # in the time left
             next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most,
             enough=target if final else None),
-            leaves, "searched", learner, episodes=stages.search_length(
-                cfg, agent.task, leaves, restarts=settings.restarts, scale=settings.scale,
-                n_jobs=settings.n_jobs))
+            leaves, "searched", learner)
         info = out.candidates[-1].search
         done = len(info.seeds) if info is not None else settings.restarts
         if done < settings.restarts:
@@ -353,8 +321,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
     for leaves, name in keepers:
         step(f"refine {name} at {leaves} leaves", partial(
             stages.refine, cfg, agent, distilled[leaves][name], settings.seed, settings.scale,
-            settings.refine_episodes), leaves, "refined", name,
-            episodes=_refine_length(cfg, agent, settings))
+            settings.refine_episodes), leaves, "refined", name)
 
 
 def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,
@@ -384,12 +351,6 @@ def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
                                      for t in trees], n_jobs=min(settings.n_jobs, len(jobs)))
     return stages.refine(cfg, agent, tree, settings.seed, settings.scale,
                          settings.refine_episodes)
-
-
-def _refine_length(cfg: Config, agent: Agent, settings: Settings) -> float:
-    """A refinement's episodes (one tree's, one core; a block's trees share the cores)."""
-    return budgets.scaled_refine_config(cfg, agent.task, settings.scale,
-                                        settings.refine_episodes, agent.continuous).episodes
 
 
 def search_learner(learners: tuple[str, ...]) -> str:
