@@ -15,11 +15,17 @@ plain-data output from ``--out`` (npz / JSON, never pickles):
   is refined by return (``ibt.refine.by_return.refine``, a small budget, the same for every
   tree) and evaluated again on the same episodes;
 * ``paired``: two trees' returns on the same episodes, start and each refinement, as a paired
-  difference with its standard error.
+  difference with its standard error;
+* ``costs`` (STreeD part): the expert's per-action regret on the raw aggregate's states (DQN:
+  Q-gap to the best action; PPO: log-probability gap to the best action), to npz;
+* ``streed``: CART at ``nodes + 1`` leaves and STreeD (``pystreed``, optimal instance
+  cost-sensitive tree with at most ``nodes`` branching nodes, on quantile-binarised features)
+  fitted to those costs; added to the ``fit`` step's tree file, so ``evaluate`` and ``paired``
+  take them as they are.
 
-pycontree is not a project dependency: install it into a separate folder and put that folder on
-PYTHONPATH after the worktree (see RESULTS.md). Seeds are explicit; the same command gives the
-same numbers.
+pycontree and pystreed are not project dependencies: install them into a separate folder and
+put that folder on PYTHONPATH after the worktree (see RESULTS.md). Seeds are explicit; the same
+command gives the same numbers (a fit stopped by its time limit aside).
 """
 
 from __future__ import annotations
@@ -259,9 +265,142 @@ def score(task: Any, tree: DecisionTreeClassifier, seeds: list[int]) -> dict[str
             "returns": [float(r) for r in returns]}
 
 
+# --- STreeD (pystreed): optimal cost-sensitive trees under a branching-node budget ----------
+
+PPO_COST_CLIP = 4.0  # nats: an action e**4 (about 55) times less likely than the best one
+
+
+def costs(out: Path, leaves: int) -> None:
+    """The committed expert's (the one ``collect`` used) regret of each action on the raw
+    aggregate's states: DQN ``max_a' Q(s, a') - Q(s, a)``; PPO ``log pi(best|s) - log pi(a|s)``
+    (``streed`` clips it)."""
+    task = get_task(TASK)
+    algo = json.loads((out / f"loop_L{leaves}.json").read_text())["algo"]
+    expert = committed_agent(task, algo).load()
+    data = np.load(out / f"data_L{leaves}.npz")
+    x_raw = data["x_raw"]
+    scores = np.concatenate([expert.scores(task.observations(x_raw[i:i + 4096]))
+                             for i in range(0, len(x_raw), 4096)])
+    # the same states, actions and weights as the loop's labels (a check on the round trip)
+    assert np.array_equal(scores.argmax(axis=1), data["y_raw"])
+    spread = scores.max(axis=1) - scores.min(axis=1)
+    assert np.allclose(spread, data["w_raw"], rtol=1e-4, atol=1e-4)
+    regret = scores.max(axis=1, keepdims=True) - scores
+    np.savez_compressed(out / f"costs_L{leaves}.npz", scores=scores, regret=regret)
+    print(f"costs L={leaves} ({algo}): {len(regret)} states, mean best-vs-worst regret "
+          f"{regret.max(axis=1).mean():.3f}")
+
+
+def action_costs(out: Path, leaves: int, clip: float) -> np.ndarray:
+    """The fitting costs: DQN's regret as it is, PPO's clipped at ``clip`` nats."""
+    regret = np.load(out / f"costs_L{leaves}.npz")["regret"]
+    algo = json.loads((out / f"loop_L{leaves}.json").read_text())["algo"]
+    return regret if algo == "dqn" else np.minimum(regret, clip)
+
+
+def binarize(x: np.ndarray, n_thresholds: int) -> tuple[np.ndarray, list[tuple[int, float]]]:
+    """``x <= t`` columns: a feature with two values at their midpoint, any other at its
+    ``n_thresholds`` quantiles (pystreed's own 'quantile' strategy). Returns the 0/1 matrix
+    and each column's (feature, threshold)."""
+    columns: list[tuple[int, float]] = []
+    for f in range(x.shape[1]):
+        values = np.unique(x[:, f])
+        if len(values) <= n_thresholds + 1:
+            cuts = (values[:-1] + values[1:]) / 2
+        else:
+            cuts = np.unique(np.quantile(x[:, f], np.linspace(0, 1, n_thresholds + 2)[1:-1]))
+        columns += [(f, float(t)) for t in cuts]
+    bits = np.stack([x[:, f] <= t for f, t in columns], axis=1).astype(np.intc)
+    return bits, columns
+
+
+def streed_to_sklearn(node: Any, columns: list[tuple[int, float]], x: np.ndarray,
+                      n_actions: int) -> DecisionTreeClassifier:
+    """A fitted STreeD tree on ``x <= t`` bits as a scikit-learn tree. STreeD's left child
+    takes bit 0 (``x > t``), so the children swap. Node weights counted on ``x``."""
+
+    def build(node: Any, rows: np.ndarray) -> tuple:
+        if node.is_leaf_node():
+            return ("leaf", int(node.label), float(rows.sum()))
+        f, t = columns[int(node.feature)]
+        go_left = x[:, f] <= t
+        return ("split", f, t, build(node.right_child, rows & go_left),
+                build(node.left_child, rows & ~go_left), float(rows.sum()))
+
+    nested = build(node, np.ones(len(x), dtype=bool))
+    return tree_arrays_from_nested(nested, x.shape[1], n_actions).to_sklearn()
+
+
+def fit_streed(out: Path, leaves: int, nodes_list: list[int], depth: int, n_thresholds: int,
+               time_limit: float, clip: float, tag: str) -> None:
+    """CART at ``nodes + 1`` leaves (the project's) and STreeD (instance cost-sensitive, at
+    most ``nodes`` branching nodes and ``depth``) on the raw aggregate with the expert's
+    per-action costs; identical binarised states are merged (their costs summed: the same
+    objective). Added to ``trees_L{leaves}.json``."""
+    from pystreed import STreeDInstanceCostSensitiveClassifier
+
+    data = np.load(out / f"data_L{leaves}.npz")
+    x_fit = data["x_fit"].astype(np.float32).astype(np.float64)
+    y_fit = data["y_fit"].astype(np.int64)
+    x_raw = data["x_raw"].astype(np.float32).astype(np.float64)
+    y_raw, w_raw = data["y_raw"].astype(np.int64), data["w_raw"]
+    cost = action_costs(out, leaves, clip)
+    algo = json.loads((out / f"loop_L{leaves}.json").read_text())["algo"]
+    # every tree's mean cost under the default costs, and its unclipped regret
+    default_cost, regret = action_costs(out, leaves, PPO_COST_CLIP), action_costs(out, leaves,
+                                                                                   np.inf)
+    n_actions = get_task(TASK).n_actions
+    path = out / f"trees_L{leaves}.json"
+    trees = json.loads(path.read_text()) if path.exists() else {}
+    bits, columns = binarize(x_raw, n_thresholds)
+    cells, inverse = np.unique(bits, axis=0, return_inverse=True)
+    cell_cost = np.zeros((len(cells), cost.shape[1]))
+    np.add.at(cell_cost, inverse.reshape(-1), cost)
+    print(f"STreeD data: {len(x_raw)} states, {bits.shape[1]} binary features, "
+          f"{len(cells)} distinct cells")
+    for nodes in nodes_list:
+        name = f"cart-L{nodes + 1}"
+        if name not in trees:
+            t0 = time.process_time()
+            model = DecisionTreeClassifier(max_leaf_nodes=nodes + 1, random_state=SEED)
+            model.fit(x_fit, y_fit)
+            trees[name] = {"tree": tree_doc(model), "fit_seconds": time.process_time() - t0}
+        st = STreeDInstanceCostSensitiveClassifier(
+            max_depth=depth, max_num_nodes=nodes, time_limit=time_limit, random_seed=SEED)
+        t0 = time.perf_counter()
+        st.fit(cells, cell_cost)
+        seconds = time.perf_counter() - t0
+        tree = streed_to_sklearn(st.get_tree(), columns, x_fit, n_actions)
+        assert np.array_equal(tree.predict(x_raw), st.predict(bits)), "conversion mismatch"
+        trees[f"streed-n{nodes}{tag}"] = {
+            "tree": tree_doc(tree), "fit_seconds": seconds,
+            "optimal_within_limit": bool(st.fit_result.is_optimal()),
+            "streed": {"cost_clip": None if algo == "dqn" else clip, "max_depth": depth,
+                       "max_num_nodes": nodes, "time_limit": time_limit,
+                       "n_thresholds": n_thresholds, "binary_features": bits.shape[1],
+                       "cells": len(cells), "objective": float(st.fit_result.score()),
+                       "depth": int(st.fit_result.tree_depth()),
+                       "branching_nodes": int(st.fit_result.tree_nodes())}}
+    for name, entry in trees.items():
+        tree = tree_from_doc(entry["tree"])
+        entry["acc_resampled"] = weighted_accuracy(tree, x_fit, y_fit)
+        entry["acc_weighted_raw"] = weighted_accuracy(tree, x_raw, y_raw, w_raw)
+        entry["acc_unweighted_raw"] = weighted_accuracy(tree, x_raw, y_raw)
+        chosen = (np.arange(len(x_raw)), tree.predict(x_raw).astype(np.int64))
+        entry["mean_cost_raw"] = float(default_cost[chosen].mean())
+        entry["mean_regret_raw"] = float(regret[chosen].mean())
+        entry["leaves"] = int(tree.get_n_leaves())
+        entry["nodes"] = int(tree.tree_.node_count)
+        print(f"{name:18s} leaves {entry['leaves']:2d} acc(w raw) "
+              f"{entry['acc_weighted_raw']:.4f} mean cost {entry['mean_cost_raw']:.4f} "
+              f"fit {entry['fit_seconds']} optimal {entry.get('optimal_within_limit')}")
+    write_json(path, trees)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("step", choices=("collect", "fit", "evaluate", "paired"))
+    parser.add_argument("step", choices=("collect", "fit", "evaluate", "paired", "costs",
+                                         "streed"))
     parser.add_argument("--out", type=Path, default=Path("/tmp/contree_out"))
     parser.add_argument("--algo", default="ppo", help="the committed expert (collect)")
     parser.add_argument("--leaves", type=int, default=8, help="the loop's CART leaf limit")
@@ -274,12 +413,25 @@ def main() -> None:
     parser.add_argument("--pair", nargs=2, default=["cart-L8", "contree-d3"],
                         help="paired: the two trees compared (second minus first)")
     parser.add_argument("--only", nargs="*", help="evaluate only these trees")
+    parser.add_argument("--clip", type=float, default=PPO_COST_CLIP,
+                        help="streed: PPO's cost cap in nats")
+    parser.add_argument("--nodes", type=int, nargs="+", default=[7, 3],
+                        help="streed: branching-node budgets")
+    parser.add_argument("--streed-depth", type=int, default=4)
+    parser.add_argument("--thresholds", type=int, default=10,
+                        help="streed: quantile thresholds per continuous feature")
+    parser.add_argument("--tag", default="", help="streed: a suffix for the trees' names")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if args.step == "collect":
         collect(args.out, args.leaves, args.iterations, args.algo)
     elif args.step == "fit":
         fit(args.out, args.leaves, args.time_limit, args.depths)
+    elif args.step == "costs":
+        costs(args.out, args.leaves)
+    elif args.step == "streed":
+        fit_streed(args.out, args.leaves, args.nodes, args.streed_depth, args.thresholds,
+                   args.time_limit, args.clip, args.tag)
     elif args.step == "paired":
         paired(args.out, args.leaves, *args.pair, args.episodes)
     else:
