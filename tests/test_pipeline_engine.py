@@ -102,6 +102,38 @@ def test_a_step_that_would_end_past_the_deadline_is_not_started(agents, tmp_path
     assert 'stopped before "distil axis at 8 leaves"' in ladder.notes[0]
 
 
+def test_a_step_running_past_the_budget_and_its_grace_is_cut(agents, tmp_path, monkeypatch):
+    """A step under way when the budget runs out (a first search, whose length no earlier step
+    foretells) is cut once its grace has passed too: the run ends near its budget with what it
+    has, marked as stopped by the time budget, nothing of the cut step kept."""
+    import time
+
+    import ibt
+    from ibt.engine import ladder as ladder_module
+
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    agent = _line_agent(agents)
+    stages.distil(cfg, agent, 4, 0, "axis")  # cached: the ladder's first step reads it
+    distil = stages.distil
+
+    def slow_at_8(cfg, agent, leaves, *args, **kwargs):
+        if leaves == 8:
+            time.sleep(60)
+        return distil(cfg, agent, leaves, *args, **kwargs)
+
+    monkeypatch.setattr(stages, "distil", slow_at_8)
+    monkeypatch.setattr(ladder_module, "GRACE_MIN", 0.5)
+    began = time.monotonic()
+    ladder = run_ladder(cfg, agent, Settings(keep=1.0, rungs=(4, 8), restarts=1),
+                        agent_mean=0.0, random_mean=-10.0,
+                        deadline=Deadline(1.0, clock=lambda: 0.0))  # never passes between steps
+    assert time.monotonic() - began < 30
+    assert ladder.stopped == "time" and ladder.steps == ["distil axis at 4 leaves"]
+    assert ladder.skipped[0] == "distil axis at 8 leaves"
+    assert '"distil axis at 8 leaves" was cut 0 s past the time budget' in ladder.notes[-1]
+    assert len(list((tmp_path / "distill").glob("*/manifest.json"))) == 1  # nothing of it kept
+
+
 def test_ctrl_c_after_the_first_candidate_leaves_a_complete_marked_report(
         agents, tmp_path, monkeypatch, capsys):
     def interrupted(*args, **kwargs):

@@ -224,7 +224,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="target share of the agent's random-normalised return (default 0.95)")
     pl.add_argument("--time", type=duration_arg, default="10m", metavar="DURATION",
                     help="wall-clock budget such as 90s, 10m, 1h30m; the best BT found by then "
-                    "is recommended (default 10m); a rerun with more time resumes from the cache")
+                    "is recommended (default 10m); a step under way may finish within a tenth of "
+                    "the budget (at least 1m) past it, else it is cut; a rerun with more time "
+                    "resumes from the cache")
     pl.add_argument("--max-nodes", type=MAX_NODES, default=None, metavar="N",
                     help="recommend only BTs of at most N nodes")
     pl.add_argument("--restarts", type=RESTARTS, default=3, metavar="K",

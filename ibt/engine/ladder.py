@@ -28,7 +28,12 @@ beyond the learners work ahead, distilling and refining the next rungs alongside
 The ladder is anytime: between steps (each one cached whole) it checks the deadline and the
 caller's ``on_step`` callback, and it does not start a step when the longest step of its kind
 so far took longer than the time left (it would run past the budget), nor another round of a
-search's restarts unless twice the last round (the round, then the polish) fits. The last
+search's restarts unless twice the last round (the round, then the polish) fits. A first
+step of its kind has no such measure, and a search's length is hard to foretell (its episodes'
+length varies five-fold with the task, the agent and the trees it meets), so a step under way
+when the budget runs out may go on for its grace (``GRACE_SHARE`` of the budget, at least
+``GRACE_MIN`` seconds) and is then cut, like Ctrl-C: the run ends near its budget, whatever the
+step. The last
 search the bisection can make spends the time left over on further restarts (up to
 ``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target), since nothing
 after it needs the time. Ctrl-C or SIGTERM inside a step ends that step unfinished (nothing of
@@ -49,7 +54,7 @@ from ibt.engine.agent import Agent
 from ibt.engine.parallel import parallel_map
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
-from ibt.signals import STOP_SIGNALS, stop_reason
+from ibt.signals import STOP_SIGNALS, OverTime, stop_reason, time_cap
 
 
 @dataclass
@@ -105,6 +110,16 @@ class Candidate:
 EXTRA_RESTARTS = 4
 
 
+#: a step under way when the budget runs out may finish within this share of the budget past
+#: it (at least ``GRACE_MIN`` seconds), else it is cut: LunarLander's 30-minute runs ended
+#: 0-40 s past their budget with a search that began late and gave the run's best BT, while a
+#: 15-minute one was still in its first search at 16 minutes (a search there takes about 20
+#: minutes on two cores); a grace chosen after seeing those runs, to keep the former's search
+#: and cut the latter's
+GRACE_SHARE = 0.1
+GRACE_MIN = 60.0
+
+
 class Deadline:
     """A wall-clock budget from now (``None``: no limit)."""
 
@@ -122,6 +137,10 @@ class Deadline:
     def left(self) -> float:
         """Seconds left (infinite without a limit)."""
         return float("inf") if self.seconds is None else self.seconds - self.elapsed()
+
+    def grace(self) -> float:
+        """Seconds past the budget a step under way may take before it is cut."""
+        return 0.0 if self.seconds is None else max(GRACE_MIN, GRACE_SHARE * self.seconds)
 
 
 @dataclass(frozen=True)
@@ -199,7 +218,8 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         if reason:
             raise Stopped(reason)
         began, running[:] = deadline.clock(), [name]
-        made = make()
+        with time_cap(deadline.left() + deadline.grace()):
+            made = make()
         took[kind] = max(took.get(kind, 0.0), deadline.clock() - began)
         running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
@@ -225,6 +245,12 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         out.stopped = str(stop)
     except STOP_SIGNALS as err:  # Ctrl-C or SIGTERM inside a step: that step is not cached
         out.stopped = stop_reason(err)
+    except OverTime:  # a step ran past its grace: cut, as by Ctrl-C
+        out.stopped = "time"
+        out.notes.append(f"\"{running[0] if running else 'a step'}\" was cut "
+                         f"{deadline.grace():.0f} s past the time budget, unfinished (what of "
+                         "it was done, such as a search's finished restarts, is cached): a "
+                         "rerun with a longer --time lets it finish")
     if out.stopped:
         out.skipped = running + [s for s in plan if s not in out.steps and s not in running]
     return out
