@@ -59,7 +59,8 @@ CASES = (
     Case("pendulum-sac", "Pendulum-v1", "sac", full=False),
     Case("lunarlander-ppo", "LunarLander-v3", "ppo", time="30m", full=False, confirm=1000),
     Case("lunarlander-dqn", "LunarLander-v3", "dqn", time="30m", full=False, confirm=1000),
-    # a budget that ends soon after the distillations: the first search is cut at its grace
+    # a budget that ends soon after the distillations: a first search sure to be cut is not
+    # started, one that starts is cut at its grace; the run ends near its 15 minutes
     Case("lunarlander-ppo-15m", "LunarLander-v3", "ppo", time="15m", full=False),
     Case("lunarlander-ppo-max25", "LunarLander-v3", "ppo", time="30m", full=False,
          confirm=1000, max_nodes=25),

@@ -8,13 +8,14 @@ import json
 import math
 import shutil
 import sys
+from dataclasses import replace
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from ibt.cli import main
-from ibt.engine import stages
+from ibt.engine import budgets, parallel, stages
 from ibt.engine.agent import callable_agent, sb3_agent
 from ibt.engine.ladder import Deadline, Settings, bisection, run_ladder
 from ibt.pipeline.recommend import choose, parse_budget, recommend
@@ -132,6 +133,59 @@ def test_a_step_running_past_the_budget_and_its_grace_is_cut(agents, tmp_path, m
     assert ladder.skipped[0] == "distil axis at 8 leaves"
     assert '"distil axis at 8 leaves" was cut 0 s past the time budget' in ladder.notes[-1]
     assert len(list((tmp_path / "distill").glob("*/manifest.json"))) == 1  # nothing of it kept
+def test_a_first_search_sure_to_be_cut_is_not_started(agents, tmp_path, monkeypatch):
+    """No search has run yet: the least it can take is its episodes, each as long as the
+    shorter of the agent's and the measured trees' mean episode, at the seconds a step the run's
+    tree measurements took. One sure to run past the budget and its grace is not started; one
+    that may fit is, with what it was expected to take in the notes."""
+    import ibt
+    from ibt.engine import ladder as ladder_module
+
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    agent = _line_agent(agents)
+    settings = Settings(keep=1.0, rungs=(4,), restarts=1)
+    length = stages.search_length(cfg, agent.task, 4, restarts=1, scale=1.0, n_jobs=1)
+    measure = stages.measure
+
+    def timed_measure(cfg, agent, tree, bts, seeds):  # 10 steps an episode, 0.1 s a step
+        return replace(measure(cfg, agent, tree, bts, seeds), lengths=[10] * len(seeds),
+                       seconds=1.0 * len(seeds))
+
+    monkeypatch.setattr(stages, "measure", timed_measure)
+    monkeypatch.setattr(ladder_module, "GRACE_MIN", 0.0)
+    least = 10 * 0.1 * length  # 1 s an episode: the real search, seconds, is never cut
+    short = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
+                       deadline=Deadline(least / 1.2, clock=lambda: 0.0))
+    assert short.stopped == "time" and short.steps == ["distil axis at 4 leaves"]
+    assert short.skipped[0] == "search axis at 4 leaves"
+    assert f"at least {least:.0f} s expected: {length:,.0f} episodes of 10 steps at the " \
+        "100000 us a step" in short.notes[0], short.notes
+    # the agent's episodes are shorter (5 steps): the search may fit, and starts
+    ample = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
+                       deadline=Deadline(least / 1.2, clock=lambda: 0.0), agent_length=5.0)
+    assert "search axis at 4 leaves" in ample.steps, ample.notes
+    assert any(n.startswith('"search axis at 4 leaves" took') for n in ample.notes)
+
+
+@pytest.mark.parametrize("n_jobs, restarts, rounds, polishes", [
+    (1, 3, 1.0, 1.0), (2, 3, 1.5, 1.5), (2, 2, 1.0, 1.0), (4, 3, 1.0, 1.0), (2, 5, 1.0, 1.0)])
+def test_a_search_is_expected_to_run_its_first_round_and_its_polishes(n_jobs, restarts,
+                                                                      rounds, polishes):
+    """The least a search runs under a deadline: its first round (3 restarts on 2 cores share
+    them, 1.5 restarts' time; on 1 core, one restart), the polishes of that round's best,
+    and the choice episodes scoring both, in one core's episodes."""
+    import ibt
+    from ibt.tasks.catalogue import resolve_task
+
+    cfg = ibt.config("paper")
+    task = resolve_task("LunarLander-v3")
+    config = budgets.search_config(cfg, task, 8, 1.0)
+    choice = min(stages.RESTART_CHOICE_FACTOR * config.selection_episodes, 1_500)
+    assert stages.search_length(cfg, task, 8, restarts=restarts, scale=1.0, n_jobs=n_jobs) == (
+        rounds * config.episodes + polishes * budgets.polish_config(cfg, config).episodes
+        + (rounds + polishes) * choice)
+
+
 
 
 def test_ctrl_c_after_the_first_candidate_leaves_a_complete_marked_report(
@@ -332,11 +386,14 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
     assert reached.choice_means[-1] >= second > max(reached.choice_means[:-1], default=-1e9)
 
 
-@pytest.mark.parametrize("n_jobs, items, processes", [(2, 3, 3), (2, 2, 2), (1, 3, 1),
-                                                       (2, 4, 2), (4, 5, 5), (4, 9, 4)])
-def test_a_round_of_fewer_than_twice_the_cores_runs_a_process_each(n_jobs, items, processes):
+@pytest.mark.parametrize("n_jobs, items, processes, wall", [
+    (2, 3, 3, 1.5), (2, 2, 2, 1.0), (1, 3, 1, 3.0), (2, 4, 2, 2.0), (4, 5, 5, 1.25),
+    (4, 9, 4, 3.0), (2, 1, 2, 1.0)])
+def test_a_round_of_fewer_than_twice_the_cores_runs_a_process_each(n_jobs, items, processes,
+                                                                    wall):
     """3 restarts on 2 cores share them as 3 processes (1.5 rounds' time), not 2 and then 1."""
-    assert stages._processes(n_jobs, items) == processes
+    assert parallel.processes(n_jobs, items) == processes
+    assert parallel.wall(items, n_jobs) == wall
 
 
 @pytest.mark.parametrize("seconds, rungs, most", [(3600.0, (4,), 8), (None, (4,), None),

@@ -28,17 +28,20 @@ beyond the learners work ahead, distilling and refining the next rungs alongside
 The ladder is anytime: between steps (each one cached whole) it checks the deadline and the
 caller's ``on_step`` callback, and it does not start a step when the longest step of its kind
 so far took longer than the time left (it would run past the budget), nor another round of a
-search's restarts unless twice the last round (the round, then the polish) fits. A first
-step of its kind has no such measure, and a search's length is hard to foretell (its episodes'
+search's restarts unless twice the last round (the round, then the polish) fits. A first step
+of its kind has no such measure, and a search's length is hard to foretell (its episodes'
 length varies five-fold with the task, the agent and the trees it meets), so a step under way
 when the budget runs out may go on for its grace (``GRACE_SHARE`` of the budget, at least
 ``GRACE_MIN`` seconds) and is then cut, like Ctrl-C: the run ends near its budget, whatever the
-step. The last
-search the bisection can make spends the time left over on further restarts (up to
-``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target), since nothing
-after it needs the time. Ctrl-C or SIGTERM inside a step ends that step unfinished (nothing of
-it is cached) and the ladder returns what it has, marked as stopped. A rerun with a longer
-deadline resumes from the cache.
+step. A first search or refinement that would be cut for sure is not started: the least it can
+take (its episodes, each as long as the shorter of the agent's and the measured trees' mean
+episode, at the seconds a step the run's tree measurements took; a search's episodes cost more,
+as it labels states with the agent and meets better, longer-lived trees) exceeds the time left
+and the grace. The last search the bisection can make spends the time left over on further
+restarts (up to ``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target),
+since nothing after it needs the time. Ctrl-C or SIGTERM inside a step ends that step unfinished
+(nothing of it is cached) and the ladder returns what it has, marked as stopped. A rerun with a
+longer deadline resumes from the cache.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
-from ibt.engine import stages, synthesis
+from ibt.engine import budgets, stages, synthesis
 from ibt.engine.agent import Agent
 from ibt.engine.parallel import parallel_map
 from ibt.evaluate.rollouts import retention_norm
@@ -172,6 +175,37 @@ class Ladder:
     notes: list[str] = field(default_factory=list)
 
 
+class Pace:
+    """How fast the run's tree measurements stepped, and how long their episodes were: the
+    least a step of ``episodes`` can take (each episode as long as the shorter of the agent's
+    and the measured trees' mean episode)."""
+
+    def __init__(self, agent_length: float | None = None) -> None:
+        self.agent_length = agent_length
+        self.seconds, self.steps, self.episodes = 0.0, 0, 0
+
+    def add(self, measured: stages.Returns) -> None:
+        """Count a measurement rolled out now (one read from the cache has no wall time)."""
+        if measured.seconds is not None and measured.lengths:
+            self.seconds += measured.seconds
+            self.steps += sum(measured.lengths)
+            self.episodes += len(measured.lengths)
+
+    def length(self) -> float:
+        """Steps an episode: the shorter of the agent's and the measured trees' mean."""
+        mean = self.steps / self.episodes if self.episodes else float("inf")
+        return min(mean, self.agent_length or float("inf"))
+
+    def least(self, episodes: float) -> float:
+        """Seconds ``episodes`` take at least (0 before any measurement was timed)."""
+        return episodes * self.length() * self.seconds / self.steps if self.steps else 0.0
+
+    def said(self, episodes: float) -> str:
+        return (f"{episodes:,.0f} episodes of {self.length():.0f} steps at the "
+                f"{1e6 * self.seconds / self.steps:.0f} us a step this run's tree measurements "
+                "took")
+
+
 class Stopped(Exception):
     """Raised between steps when the deadline passed or the callback asked to stop."""
 
@@ -193,8 +227,10 @@ def learners_of(agent: Agent, relational: bool) -> tuple[str, ...]:
 
 def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: float,
                random_mean: float, deadline: Deadline | None = None,
-               on_step: Callable[[Ladder, str], str | None] | None = None) -> Ladder:
-    """Climb the ladder; ``agent_mean``/``random_mean`` are the choice episodes' baselines.
+               on_step: Callable[[Ladder, str], str | None] | None = None,
+               agent_length: float | None = None) -> Ladder:
+    """Climb the ladder; ``agent_mean``/``random_mean`` are the choice episodes' baselines
+    (``agent_length``: the agent's mean steps an episode there, where known).
     ``on_step(ladder, next_step)`` runs before every step; a string it returns stops the
     ladder with that reason."""
     deadline = deadline or Deadline(None)
@@ -202,10 +238,13 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     learners = learners_of(agent, settings.relational)
     choice = stages.held_out(cfg.final_episodes, 0)
     took: dict[str, float] = {}  # each kind of step's longest wall time (distil, refine, search)
+    pace = Pace(agent_length)  # the run's tree measurements: seconds a step, steps an episode
     running: list[str] = []  # the step under way (what a signal cuts short)
 
     def step(name: str, make: Callable[[], Any], leaves: int, stage: str, learner: str,
-             info: Any = None) -> Any:
+             info: Any = None, episodes: float = 0.0) -> Any:
+        """Run one cached step, then measure its tree; ``episodes``: its least length in
+        episodes of one core's wall time (a search's, a refinement's), for the deadline."""
         if deadline.passed():
             raise Stopped("time")
         kind = name.split()[0]
@@ -214,17 +253,29 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
             out.notes.append(f"the ladder stopped before \"{name}\": the longest {kind} step "
                              f"took {took[kind]:.0f} s and {left:.0f} s of the budget were left")
             raise Stopped("time")
+        least = pace.least(episodes) if kind not in took and deadline.seconds else 0.0
+        if least > left + deadline.grace():
+            out.notes.append(f"the ladder stopped before \"{name}\": it would not end within the "
+                             f"budget and its grace (at least {least:.0f} s expected: "
+                             f"{pace.said(episodes)}; {left:.0f} s were left and "
+                             f"{deadline.grace():.0f} s of grace)")
+            raise Stopped("time")
         reason = on_step(out, name) if on_step is not None else None
         if reason:
             raise Stopped(reason)
         began, running[:] = deadline.clock(), [name]
         with time_cap(deadline.left() + deadline.grace()):
             made = make()
-        took[kind] = max(took.get(kind, 0.0), deadline.clock() - began)
+        seconds = deadline.clock() - began
+        if least:
+            out.notes.append(f"\"{name}\" took {seconds:.0f} s (at least {least:.0f} s were "
+                             "expected from its episodes)")
+        took[kind] = max(took.get(kind, 0.0), seconds)
         running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
         bts = synthesis.synthesise(cfg, agent, tree, settings.seed)
         ret = stages.measure(cfg, agent, tree, bts, choice)
+        pace.add(ret)
         out.candidates.append(Candidate(
             leaves, stage, tree, bts, ret.mean, ret.std,
             _retention(ret.mean, agent_mean, random_mean), learner == "relational", info))
@@ -280,7 +331,8 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
                 step(f"refine {tag}", partial(_refine_block, cfg, agent, block, settings,
                                               learners, tree) if ahead else partial(
                     stages.refine, cfg, agent, tree, settings.seed, settings.scale,
-                    settings.refine_episodes), leaves, "refined", learner)
+                    settings.refine_episodes), leaves, "refined", learner,
+                    episodes=_refine_length(cfg, agent, settings))
             if _kept_at(out, leaves, settings) and not settings.full:
                 return
 
@@ -327,7 +379,9 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             # in the time left
             next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most,
             enough=target if final else None),
-            leaves, "searched", learner)
+            leaves, "searched", learner, episodes=stages.search_length(
+                cfg, agent.task, leaves, restarts=settings.restarts, scale=settings.scale,
+                n_jobs=settings.n_jobs))
         info = out.candidates[-1].search
         done = len(info.seeds) if info is not None else settings.restarts
         if done < settings.restarts:
@@ -347,7 +401,8 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
     for leaves, name in keepers:
         step(f"refine {name} at {leaves} leaves", partial(
             stages.refine, cfg, agent, distilled[leaves][name], settings.seed, settings.scale,
-            settings.refine_episodes), leaves, "refined", name)
+            settings.refine_episodes), leaves, "refined", name,
+            episodes=_refine_length(cfg, agent, settings))
 
 
 def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,
@@ -377,6 +432,12 @@ def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
                                      for t in trees], n_jobs=min(settings.n_jobs, len(jobs)))
     return stages.refine(cfg, agent, tree, settings.seed, settings.scale,
                          settings.refine_episodes)
+
+
+def _refine_length(cfg: Config, agent: Agent, settings: Settings) -> float:
+    """A refinement's episodes (one tree's, one core; a block's trees share the cores)."""
+    return budgets.scaled_refine_config(cfg, agent.task, settings.scale,
+                                        settings.refine_episodes, agent.continuous).episodes
 
 
 def search_learner(learners: tuple[str, ...]) -> str:

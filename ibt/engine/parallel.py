@@ -11,6 +11,7 @@ resolve as they do here; loky reuses its workers, so this is done for every item
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -42,6 +43,25 @@ def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_j
             client.close()
     with parallel_config(backend="loky", n_jobs=n_jobs):
         return list(Parallel()(delayed(fn)(*a) for a in args))
+
+
+def processes(n_jobs: int, items: int) -> int:
+    """Processes for one round of ``items`` on ``n_jobs`` cores: one each where a round holds
+    fewer than twice the cores (a folded round shares them), else ``n_jobs``."""
+    return items if 1 < n_jobs < items < 2 * n_jobs else n_jobs
+
+
+def round_size(left: int, width: int) -> int:
+    """A round's items: ``width`` (its cores), or all ``left`` (the items not yet run) where
+    fewer than two rounds' worth remain, so the remainder shares the cores."""
+    return left if width < left < 2 * width else width
+
+
+def wall(items: int, n_jobs: int) -> float:
+    """Wall time of ``items`` equal jobs on ``n_jobs`` cores, in one job's time, as
+    :func:`processes` runs them (a folded round shares the cores)."""
+    running = processes(n_jobs, items)
+    return items / n_jobs if running == items > n_jobs else float(math.ceil(items / running))
 
 
 def _here(here: tuple[str, list[str]], fn: Callable[..., Any], *args: Any) -> Any:

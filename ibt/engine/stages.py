@@ -31,6 +31,7 @@ from typing import Any
 from ibt.cache.store import load_or_compute, tree_digest
 from ibt.engine import budgets
 from ibt.engine.agent import Agent
+from ibt.engine.parallel import processes, round_size, wall
 from ibt.evaluate.rollouts import (
     FINAL_SEED_BASE,
     SELECTION_BLOCK,
@@ -60,6 +61,8 @@ class Returns(ReturnStats):
 
     returns: list[float]
     first_seed: int
+    lengths: list[int] | None = None  # every episode's steps (entries from before: unknown)
+    seconds: float | None = None  # the rollout's wall time, where rolled out now (not cached)
 
 
 def held_out(n: int, block: int) -> list[int]:
@@ -71,15 +74,24 @@ def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: li
                ) -> Returns:
     """A policy's returns on ``seeds`` (consecutive), cached under ``what`` (``bt``: a BT's
     digest, ``tree``: a tree's, else an agent's or the random policy's identity) as the kind
-    ``returns``: every episode's return, where the grid's evaluation kinds keep summaries."""
+    ``returns``: every episode's return and length (steps), where the grid's evaluation kinds
+    keep summaries; rolled out now, it also tells the rollout's wall time (the ladder's pace)."""
     params = {"task": task.key, "episodes": len(seeds), "first_seed": seeds[0], **what}
 
+    took: list[float] = []
+
     def compute() -> dict[str, Any]:
-        return {"returns": [float(r) for r in rollout(task, act(), seeds).returns]}
+        began = time.perf_counter()
+        done = rollout(task, act(), seeds)
+        took.append(time.perf_counter() - began)
+        return {"returns": [float(r) for r in done.returns],
+                "lengths": [int(n) for n in done.lengths]}
 
     doc = load_or_compute("returns", params, compute, cache_dir=cfg.cache_dir, codec="json",
                           refresh=cfg.refresh)
-    return Returns(list(doc["returns"]), seeds[0])
+    lengths = doc.get("lengths")
+    return Returns(list(doc["returns"]), seeds[0], list(lengths) if lengths else None,
+                   took[0] if took else None)
 
 
 def doc_digest(doc: Any) -> str:
@@ -383,25 +395,22 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     most = restarts if next_round is None else max(restarts, most or restarts)
     quiet = replace(cfg, progress=cfg.progress and most == 1)
     width = max(1, min(n_jobs, most))
-    choice = selection_seeds(min(RESTART_CHOICE_FACTOR * config.selection_episodes,
-                                 SELECTION_BLOCK - RESTART_CHOICE_OFFSET), seed,
-                             offset=RESTART_CHOICE_OFFSET)
+    choice = selection_seeds(_choice_episodes(config), seed, offset=RESTART_CHOICE_OFFSET)
     trees: list[Any] = []
     means: list[float] = []
     while len(trees) < most:
-        left = restarts - len(trees)  # asked restarts not yet run
-        size = left if width < left < 2 * width else width
+        size = round_size(restarts - len(trees), width)
         batch = range(seed + len(trees), seed + min(most, len(trees) + size))
         began = time.monotonic()
         records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
                                              env_modules) for s in batch],
-                               n_jobs=_processes(n_jobs, len(batch)))
+                               n_jobs=processes(n_jobs, len(batch)))
         seconds = time.monotonic() - began
         done = [_restart_winner(record, relational) for record in records]
         trees += done
         means += parallel_map(choice_mean, [(cfg, agent, tree, choice, env_modules)
                                             for tree in done],
-                              n_jobs=_processes(n_jobs, len(done)))
+                              n_jobs=processes(n_jobs, len(done)))
         reached = [i for i in range(restarts - 1, len(trees))
                    if enough is not None and means[i] >= enough]
         if reached:  # the restarts up to the first that reached it, whatever the round width
@@ -415,14 +424,34 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     method, settings = SEARCHED_REL if relational else SEARCHED, budgets.polish_config(cfg, config)
     polished = parallel_map(polish_one, [(quiet, agent, seeds[i], method, trees[i], settings,
                                           env_modules) for i in finalists],
-                            n_jobs=_processes(n_jobs, len(finalists)))
+                            n_jobs=processes(n_jobs, len(finalists)))
     scores = parallel_map(choice_mean, [(cfg, agent, tree, choice, env_modules)
                                         for tree in polished],
-                          n_jobs=_processes(n_jobs, len(polished)))
+                          n_jobs=processes(n_jobs, len(polished)))
     best = max(range(len(finalists)),
                key=lambda k: (scores[k], -leaves_of(polished[k]), -finalists[k]))
     return polished[best], SearchInfo(seeds, len(choice), tuple(means), finalists[best],
                                       tuple(seeds[i] for i in finalists), tuple(scores))
+
+
+def search_length(cfg: Config, task: Task, leaves: int, *, restarts: int, scale: float,
+                  n_jobs: int) -> float:
+    """The least a :func:`search` runs (its first round of restarts, their polishes and the
+    choice episodes scoring them), in episodes of one core's wall time: what the ladder weighs
+    against the time left before starting a first search."""
+    config = budgets.search_config(cfg, task, leaves, scale)
+    width = max(1, min(n_jobs, restarts))
+    first = round_size(restarts, width)
+    polished = min(restarts, first)
+    choice = _choice_episodes(config)
+    return (config.episodes * wall(first, n_jobs) + budgets.polish_config(cfg, config).episodes
+            * wall(polished, n_jobs) + choice * (wall(first, n_jobs) + wall(polished, n_jobs)))
+
+
+def _choice_episodes(config: Any) -> int:
+    """The held-out episodes that choose among a search's restarts (within the run's block)."""
+    return min(RESTART_CHOICE_FACTOR * config.selection_episodes,
+               SELECTION_BLOCK - RESTART_CHOICE_OFFSET)
 
 
 def polish_one(cfg: Config, agent: Agent, seed: int, method: str, tree: Any, config: Any,
@@ -441,12 +470,6 @@ def choice_mean(cfg: Config, agent: Agent, tree: Any, seeds: list[int],
     Runs in a worker process too."""
     _import_modules(env_modules)
     return measure(cfg, agent, tree, {}, seeds).mean
-
-
-def _processes(n_jobs: int, items: int) -> int:
-    """Processes for one round of ``items`` on ``n_jobs`` cores: one each where a round holds
-    fewer than twice the cores (a folded round shares them), else ``n_jobs``."""
-    return items if 1 < n_jobs < items < 2 * n_jobs else n_jobs
 
 
 def _restart_winner(record: Any, relational: bool) -> Any:

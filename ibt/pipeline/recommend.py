@@ -216,8 +216,10 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         bar.set_postfix_str(f"{shown}now: {name}")
         bar.update(1 if ladder.steps else 0)
 
+    lengths = agent_choice.lengths
     ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
-                        random_mean=random_choice.mean, deadline=deadline, on_step=on_step)
+                        random_mean=random_choice.mean, deadline=deadline, on_step=on_step,
+                        agent_length=sum(lengths) / len(lengths) if lengths else None)
     if warning:
         ladder.notes.insert(0, warning)
     bar.close()
