@@ -30,7 +30,7 @@ caller's ``on_step`` callback, and it does not start a step when the longest ste
 so far took longer than the time left (it would run past the budget), nor another round of a
 search's restarts unless twice the last round (the round, then the polish) fits. A first step
 of its kind has no such measure, and a search's length is hard to foretell (its episodes'
-length varies five-fold with the task, the agent and the trees it meets), so a step under way
+length varies several-fold with the task, the agent and the trees it meets), so a step under way
 when the budget runs out may go on for its grace (``GRACE_SHARE`` of the budget, at least
 ``GRACE_MIN`` seconds) and is then cut, like Ctrl-C: the run ends near its budget, whatever the
 step. A first search or refinement that would be cut for sure is not started: the least it can

@@ -77,7 +77,6 @@ def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: li
     ``returns``: every episode's return and length (steps), where the grid's evaluation kinds
     keep summaries; rolled out now, it also tells the rollout's wall time (the ladder's pace)."""
     params = {"task": task.key, "episodes": len(seeds), "first_seed": seeds[0], **what}
-
     took: list[float] = []
 
     def compute() -> dict[str, Any]:
@@ -440,12 +439,10 @@ def search_length(cfg: Config, task: Task, leaves: int, *, restarts: int, scale:
     choice episodes scoring them), in episodes of one core's wall time: what the ladder weighs
     against the time left before starting a first search."""
     config = budgets.search_config(cfg, task, leaves, scale)
-    width = max(1, min(n_jobs, restarts))
-    first = round_size(restarts, width)
-    polished = min(restarts, first)
-    choice = _choice_episodes(config)
-    return (config.episodes * wall(first, n_jobs) + budgets.polish_config(cfg, config).episodes
-            * wall(polished, n_jobs) + choice * (wall(first, n_jobs) + wall(polished, n_jobs)))
+    size = round_size(restarts, max(1, min(n_jobs, restarts)))  # the first round's restarts
+    first, polished = wall(size, n_jobs), wall(min(restarts, size), n_jobs)
+    return (config.episodes * first + budgets.polish_config(cfg, config).episodes * polished
+            + _choice_episodes(config) * (first + polished))
 
 
 def _choice_episodes(config: Any) -> int:
