@@ -91,12 +91,14 @@ def train_user_agents() -> None:
     if not (agents / "thruster_sac.zip").exists():
         import gymnasium as gym
         from stable_baselines3 import SAC
+        from stable_baselines3.common.logger import Logger
 
         sys.path.insert(0, str(OUT))
         import bench_thruster  # noqa: F401
 
         model = SAC("MlpPolicy", gym.make("Thruster-v0"), seed=0, device="cpu",
                     learning_starts=200, policy_kwargs={"net_arch": [32, 32]})
+        model.set_logger(Logger(None, []))  # no empty /tmp/SB3-<date> folder
         model.learn(6_000)
         model.save(agents / "thruster_sac.zip")
 

@@ -74,6 +74,7 @@ def user(tmp_path_factory):
     """The user's folder: the environment modules on sys.path, and a tiny PPO checkpoint."""
     import gymnasium as gym
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
 
     folder = tmp_path_factory.mktemp("user")
     (folder / "ibt_user_corridor.py").write_text(ENV_SOURCE)
@@ -83,6 +84,7 @@ def user(tmp_path_factory):
 
     model = PPO("MlpPolicy", gym.make("Corridor-v0"), n_steps=64, batch_size=64, n_epochs=1,
                 seed=0, device="cpu", policy_kwargs={"net_arch": [16]})
+    model.set_logger(Logger(None, []))  # no empty /tmp/SB3-<date> folder
     model.learn(64)
     model.save(folder / "ppo.zip")
     yield folder
@@ -182,10 +184,12 @@ def test_a_trained_expert_of_the_users_environment_keeps_its_return_as_a_bt(user
                                                                             capsys):
     import gymnasium as gym
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
 
     checkpoint = tmp_path / "ppo.zip"
     model = PPO("MlpPolicy", gym.make("Corridor-v0"), n_steps=256, batch_size=64, seed=0,
                 device="cpu", policy_kwargs={"net_arch": [16]})
+    model.set_logger(Logger(None, []))  # no empty /tmp/SB3-<date> folder
     model.learn(20_000)
     model.save(checkpoint)
     env = ["--env-module", "ibt_user_corridor"]

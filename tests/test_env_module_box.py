@@ -59,6 +59,7 @@ def user(tmp_path_factory):
     """The user's folder: the environment module on sys.path, and a tiny SAC checkpoint."""
     import gymnasium as gym
     from stable_baselines3 import SAC
+    from stable_baselines3.common.logger import Logger
 
     folder = tmp_path_factory.mktemp("user_box")
     (folder / "ibt_user_thruster.py").write_text(ENV_SOURCE)
@@ -67,6 +68,7 @@ def user(tmp_path_factory):
 
     model = SAC("MlpPolicy", gym.make("Thruster-v0"), learning_starts=50, batch_size=32,
                 seed=0, device="cpu", policy_kwargs={"net_arch": [16]})
+    model.set_logger(Logger(None, []))  # no empty /tmp/SB3-<date> folder
     model.learn(300)
     model.save(folder / "sac.zip")
     yield folder

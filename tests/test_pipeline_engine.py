@@ -167,6 +167,38 @@ def test_a_first_search_sure_to_be_cut_is_not_started(agents, tmp_path, monkeypa
     assert any(n.startswith('"search axis at 4 leaves" took') for n in ample.notes)
 
 
+def test_a_rerun_from_the_cache_times_its_last_tree_for_the_pace(agents, tmp_path,
+                                                                 monkeypatch):
+    """A rerun that read every measurement from the cache has no timed rollout: its last tree's
+    first two choice episodes are rolled out anew (and not cached) for the pace, so a first
+    search sure to be cut is still not started."""
+    import ibt
+    from ibt.engine import ladder as ladder_module
+
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    agent = _line_agent(agents)
+    settings = Settings(keep=1.0, rungs=(4,), restarts=1)
+    first = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
+                       on_step=lambda done, step: "enough" if done.steps else None)
+    assert first.steps == ["distil axis at 4 leaves"]  # now in the cache
+    rolled, calls = stages.rolled, []
+
+    def timed(task, act, seeds):  # 10 steps an episode, 0.1 s a step
+        calls.append(seeds)
+        return replace(rolled(task, act, seeds), lengths=[10] * len(seeds),
+                       seconds=1.0 * len(seeds))
+
+    monkeypatch.setattr(stages, "rolled", timed)
+    monkeypatch.setattr(ladder_module, "GRACE_MIN", 0.0)
+    length = stages.search_length(cfg, agent.task, 4, restarts=1, scale=1.0, n_jobs=1)
+    least = 10 * 0.1 * length
+    rerun = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
+                       deadline=Deadline(least / 1.2, clock=lambda: 0.0))
+    assert rerun.stopped == "time" and rerun.steps == ["distil axis at 4 leaves"]
+    assert calls == [stages.held_out(cfg.final_episodes, 0)[:2]]  # the pace's rollout only
+    assert f"at least {least:.0f} s expected" in rerun.notes[0], rerun.notes
+
+
 @pytest.mark.parametrize("n_jobs, restarts, rounds, polishes", [
     (1, 3, 1.0, 1.0), (2, 3, 1.5, 1.5), (2, 2, 1.0, 1.0), (4, 3, 1.0, 1.0), (2, 5, 1.0, 1.0)])
 def test_a_search_is_expected_to_run_its_first_round_and_its_polishes(n_jobs, restarts,
@@ -280,6 +312,7 @@ def thruster(tmp_path_factory):
     not matter here)."""
     import gymnasium as gym
     from stable_baselines3 import SAC, TD3
+    from stable_baselines3.common.logger import Logger
 
     from tests.test_env_module_box import ENV_SOURCE
 
@@ -292,6 +325,7 @@ def thruster(tmp_path_factory):
         model = algo("MlpPolicy", gym.make("Thruster-v0"), learning_starts=50, batch_size=32,
                      seed=0, device="cpu", policy_kwargs={"net_arch": [16]},
                      learning_rate=rate)
+        model.set_logger(Logger(None, []))  # no empty /tmp/SB3-<date> folder
         model.learn(steps)
         model.save(folder / f"{name}.zip")
     yield folder

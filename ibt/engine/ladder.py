@@ -35,7 +35,8 @@ when the budget runs out may go on for its grace (``GRACE_SHARE`` of the budget,
 ``GRACE_MIN`` seconds) and is then cut, like Ctrl-C: the run ends near its budget, whatever the
 step. A first search or refinement that would be cut for sure is not started: the least it can
 take (its episodes, each as long as the shorter of the agent's and the measured trees' mean
-episode, at the seconds a step the run's tree measurements took; a search's episodes cost more,
+episode, at the seconds a step the run's tree measurements took, or, on a rerun that read them
+all from the cache, two episodes of the last tree timed anew; a search's episodes cost more,
 as it labels states with the agent and meets better, longer-lived trees) exceeds the time left
 and the grace. The last search the bisection can make spends the time left over on further
 restarts (up to ``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target),
@@ -121,6 +122,8 @@ EXTRA_RESTARTS = 4
 #: and cut the latter's
 GRACE_SHARE = 0.1
 GRACE_MIN = 60.0
+#: the pace of a rerun that read every measurement from the cache: its last tree timed anew
+PACE_EPISODES = 2
 
 
 class Deadline:
@@ -253,7 +256,12 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
             out.notes.append(f"the ladder stopped before \"{name}\": the longest {kind} step "
                              f"took {took[kind]:.0f} s and {left:.0f} s of the budget were left")
             raise Stopped("time")
-        least = pace.least(episodes) if kind not in took and deadline.seconds else 0.0
+        gated = bool(episodes) and kind not in took and deadline.seconds is not None
+        if gated and not pace.steps and out.candidates:  # every measurement read from the cache
+            last = out.candidates[-1]
+            pace.add(stages.rolled(agent.task, stages.policy(agent, last.tree, last.bts)[1],
+                                   choice[:PACE_EPISODES]))
+        least = pace.least(episodes) if gated else 0.0
         if least > left + deadline.grace():
             out.notes.append(f"the ladder stopped before \"{name}\": it would not end within the "
                              f"budget and its grace (at least {least:.0f} s expected: "

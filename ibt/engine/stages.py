@@ -31,7 +31,7 @@ from typing import Any
 from ibt.cache.store import load_or_compute, tree_digest
 from ibt.engine import budgets
 from ibt.engine.agent import Agent
-from ibt.engine.parallel import processes, round_size, wall
+from ibt.engine.parallel import parallel_map, processes, round_size, wall
 from ibt.evaluate.rollouts import (
     FINAL_SEED_BASE,
     SELECTION_BLOCK,
@@ -77,20 +77,25 @@ def returns_of(cfg: Config, task: Any, what: dict[str, Any], act: Any, seeds: li
     ``returns``: every episode's return and length (steps), where the grid's evaluation kinds
     keep summaries; rolled out now, it also tells the rollout's wall time (the ladder's pace)."""
     params = {"task": task.key, "episodes": len(seeds), "first_seed": seeds[0], **what}
-    took: list[float] = []
+    now: list[Returns] = []
 
     def compute() -> dict[str, Any]:
-        began = time.perf_counter()
-        done = rollout(task, act(), seeds)
-        took.append(time.perf_counter() - began)
-        return {"returns": [float(r) for r in done.returns],
-                "lengths": [int(n) for n in done.lengths]}
+        now.append(rolled(task, act, seeds))
+        return {"returns": now[0].returns, "lengths": now[0].lengths}
 
     doc = load_or_compute("returns", params, compute, cache_dir=cfg.cache_dir, codec="json",
                           refresh=cfg.refresh)
     lengths = doc.get("lengths")
     return Returns(list(doc["returns"]), seeds[0], list(lengths) if lengths else None,
-                   took[0] if took else None)
+                   now[0].seconds if now else None)
+
+
+def rolled(task: Any, act: Callable[[], Any], seeds: list[int]) -> Returns:
+    """A policy's returns on ``seeds`` rolled out now, not cached, with their wall time."""
+    began = time.perf_counter()
+    done = rollout(task, act(), seeds)
+    return Returns([float(r) for r in done.returns], seeds[0], [int(n) for n in done.lengths],
+                   time.perf_counter() - began)
 
 
 def doc_digest(doc: Any) -> str:
@@ -199,10 +204,8 @@ def box_method(agent: Agent) -> str:
 
 def commands(cfg: Config, agent: Agent, tree_doc: dict[str, Any], seed: int) -> dict[str, Any]:
     """A regression tree's leaves merged into the fewest named commands that keep its held-out
-    return within a tolerance (kind ``box-commands``): ``arrays`` (a
-    :class:`ibt.refine.commands.CommandArrays` document), ``rows`` (every count tried),
-    ``scale`` (agent minus random return on those episodes). The tree, distilled from the
-    agent, identifies it in the key."""
+    return within a tolerance (kind ``box-commands``): ``arrays`` (a ``CommandArrays``
+    document), ``rows`` (every count tried), ``scale`` (agent minus random return there)."""
     from ibt.distill.continuous import regressor_from_doc
     from ibt.refine.commands import CommandArrays
     from ibt.synth.commands import DECIMALS, choose_commands
@@ -372,23 +375,17 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
            most: int | None = None, enough: float | None = None) -> tuple[Any, SearchInfo]:
     """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
     ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes
-    (:data:`RESTART_CHOICE_FACTOR` times the search's own selection episodes); the
-    best ``restarts`` of them polished (CMA-ES on thresholds, then free pruning), scored again
-    there, and the best polished tree returned: a polish can move a restart's return by more
-    than the restarts differ, so the choice is made after it.
+    (:data:`RESTART_CHOICE_FACTOR` times the search's own selection episodes); the best
+    ``restarts`` polished (CMA-ES on thresholds, then free pruning), scored again, the best
+    returned: a polish can move a return more than the restarts differ.
 
-    The restarts run in rounds of ``n_jobs`` (each restart cached on its own), the asked
-    restarts' remainder joining their last full round instead of a round of its own that would
-    leave cores idle: 3 restarts on 2 cores are one round of 3 processes sharing the 2 cores,
-    1.5 rounds' time instead of 2 (the polishes likewise);
-    ``next_round(seconds)``, given the last round's wall time, says whether another round may
-    start (the pipeline's deadline): the choice is then among the restarts done, and a rerun
-    with more time adds the others from the cache. With ``next_round``, rounds go on past
-    ``restarts`` up to ``most`` seeds while it allows (time left over is spent on restarts),
-    up to the first restart whose choice mean reaches ``enough`` (the target; the same seeds on
-    any number of cores); each round runs at most ``n_jobs`` seeds."""
-    from ibt.engine.parallel import parallel_map
-
+    Restarts run in rounds of ``n_jobs``, each cached on its own; a remainder joins the last
+    full round (3 restarts on 2 cores: one round of 3 processes, 1.5 rounds' time; polishes
+    likewise). ``next_round(seconds)``, given the last round's wall time, says whether another
+    may start (the deadline): the choice is then among the restarts done, and a rerun with more
+    time adds the others from the cache. With it, rounds of at most ``n_jobs`` go on past
+    ``restarts`` up to ``most`` seeds while it allows, up to the first restart whose choice
+    mean reaches ``enough`` (the target; the same seeds on any number of cores)."""
     task = agent.task
     config = budgets.search_config(cfg, task, leaves, scale)
     most = restarts if next_round is None else max(restarts, most or restarts)
@@ -439,10 +436,9 @@ def search_length(cfg: Config, task: Task, leaves: int, *, restarts: int, scale:
     choice episodes scoring them), in episodes of one core's wall time: what the ladder weighs
     against the time left before starting a first search."""
     config = budgets.search_config(cfg, task, leaves, scale)
-    size = round_size(restarts, max(1, min(n_jobs, restarts)))  # the first round's restarts
-    first, polished = wall(size, n_jobs), wall(min(restarts, size), n_jobs)
-    return (config.episodes * first + budgets.polish_config(cfg, config).episodes * polished
-            + _choice_episodes(config) * (first + polished))
+    rounds = wall(round_size(restarts, max(1, min(n_jobs, restarts))), n_jobs)  # then polishes
+    return rounds * (config.episodes + budgets.polish_config(cfg, config).episodes
+                     + 2 * _choice_episodes(config))
 
 
 def _choice_episodes(config: Any) -> int:
@@ -485,6 +481,12 @@ def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: li
             ) -> Returns:
     """The tree's returns on ``seeds`` (every BT of it decides as it does); a command tree is
     rolled out through its smallest BT (the command table is the BT's)."""
+    return returns_of(cfg, agent.task, *policy(agent, tree, bts), seeds)
+
+
+def policy(agent: Agent, tree: Any, bts: dict[str, Any]
+           ) -> tuple[dict[str, Any], Callable[[], Any]]:
+    """How a tree is measured: its identity in the cache, and its policy's maker."""
     from ibt.evaluate.policies import TreePolicy
     from ibt.refine.commands import CommandArrays
 
@@ -493,7 +495,5 @@ def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: li
         from ibt.synth.commands import CommandBTPolicy
 
         bt = bts[smallest_bt(bts)]
-        return returns_of(cfg, task, {"bt": bt_digest(bt)},
-                          lambda: CommandBTPolicy(task, bt).act, seeds)
-    return returns_of(cfg, task, {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act,
-                      seeds)
+        return {"bt": bt_digest(bt)}, lambda: CommandBTPolicy(task, bt).act
+    return {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act
