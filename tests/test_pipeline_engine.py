@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from ibt.cli import main
 from ibt.engine import budgets, parallel, stages
 from ibt.engine.agent import callable_agent, sb3_agent
-from ibt.engine.ladder import Deadline, Settings, bisection, run_ladder
+from ibt.engine.deadline import Deadline
+from ibt.engine.ladder import Settings, bisection, run_ladder
 from ibt.pipeline.recommend import choose, parse_budget, recommend
 from tests.test_recommend import FILES, _candidate
 
@@ -110,7 +111,7 @@ def test_a_step_running_past_the_budget_and_its_grace_is_cut(agents, tmp_path, m
     import time
 
     import ibt
-    from ibt.engine import ladder as ladder_module
+    from ibt.engine import deadline as deadline_module
 
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = _line_agent(agents)
@@ -123,7 +124,7 @@ def test_a_step_running_past_the_budget_and_its_grace_is_cut(agents, tmp_path, m
         return distil(cfg, agent, leaves, *args, **kwargs)
 
     monkeypatch.setattr(stages, "distil", slow_at_8)
-    monkeypatch.setattr(ladder_module, "GRACE_MIN", 0.5)
+    monkeypatch.setattr(deadline_module, "GRACE_MIN", 0.5)
     began = time.monotonic()
     ladder = run_ladder(cfg, agent, Settings(keep=1.0, rungs=(4, 8), restarts=1),
                         agent_mean=0.0, random_mean=-10.0,
@@ -139,7 +140,7 @@ def test_a_first_search_sure_to_be_cut_is_not_started(agents, tmp_path, monkeypa
     tree measurements took. One sure to run past the budget and its grace is not started; one
     that may fit is, with what it was expected to take in the notes."""
     import ibt
-    from ibt.engine import ladder as ladder_module
+    from ibt.engine import deadline as deadline_module
 
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = _line_agent(agents)
@@ -152,7 +153,7 @@ def test_a_first_search_sure_to_be_cut_is_not_started(agents, tmp_path, monkeypa
                        seconds=1.0 * len(seeds))
 
     monkeypatch.setattr(stages, "measure", timed_measure)
-    monkeypatch.setattr(ladder_module, "GRACE_MIN", 0.0)
+    monkeypatch.setattr(deadline_module, "GRACE_MIN", 0.0)
     least = 10 * 0.1 * length  # 1 s an episode: the real search, seconds, is never cut
     short = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
                        deadline=Deadline(least / 1.2, clock=lambda: 0.0))
@@ -173,7 +174,7 @@ def test_a_rerun_from_the_cache_times_its_last_tree_for_the_pace(agents, tmp_pat
     first two choice episodes are rolled out anew (and not cached) for the pace, so a first
     search sure to be cut is still not started."""
     import ibt
-    from ibt.engine import ladder as ladder_module
+    from ibt.engine import deadline as deadline_module
 
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = _line_agent(agents)
@@ -189,7 +190,7 @@ def test_a_rerun_from_the_cache_times_its_last_tree_for_the_pace(agents, tmp_pat
                        seconds=1.0 * len(seeds))
 
     monkeypatch.setattr(stages, "rolled", timed)
-    monkeypatch.setattr(ladder_module, "GRACE_MIN", 0.0)
+    monkeypatch.setattr(deadline_module, "GRACE_MIN", 0.0)
     length = stages.search_length(cfg, agent.task, 4, restarts=1, scale=1.0, n_jobs=1)
     least = 10 * 0.1 * length
     rerun = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
@@ -494,3 +495,30 @@ def test_the_restarts_help_states_the_ladders_extra_restarts(capsys):
     with pytest.raises(SystemExit):
         build_parser().parse_args(["pipeline", "--help"])
     assert f"up to {EXTRA_RESTARTS}K" in " ".join(capsys.readouterr().out.split())
+
+
+def test_time_left_over_polishes_again_the_searched_bt_nearest_the_target(agents, tmp_path):
+    """The ladder done with time left and no BT keeping the target: the searched BT is polished
+    again from the seeds after the search's restarts, kept only where that beat it on the
+    search's choice episodes, at most ``AGAIN_ROUNDS`` times; without a deadline, never."""
+    import ibt
+    from ibt.engine import polish
+
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    agent = _line_agent(agents)
+    settings = Settings(keep=1.0, rungs=(4,), restarts=1)
+    bare = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0)
+    assert bare.steps == ["distil axis at 4 leaves", "search axis at 4 leaves"]
+    ladder = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
+                        deadline=Deadline(3600.0))
+    again = ladder.steps[2:]
+    assert ladder.steps[:2] == bare.steps and 1 <= len(again) <= polish.AGAIN_ROUNDS
+    assert set(again) == {"polish again axis at 4 leaves"} and ladder.stopped is None
+    notes = [n for n in ladder.notes if n.startswith("polished again")]
+    searched = next(c for c in ladder.candidates if c.stage == "searched")
+    after = searched.search.seeds[-1] + 1  # the seeds after the search's restarts
+    assert notes[0].startswith(f"polished again at leaf limit 4 from seeds [{after}]: "), notes
+    polished = [c for c in ladder.candidates if c.stage == "polished"]
+    assert len(polished) == sum(n.endswith("the best kept") for n in notes)
+    assert len(notes) == len(again) and (len(again) == polish.AGAIN_ROUNDS
+                                         or notes[-1].endswith("none kept"))

@@ -40,21 +40,24 @@ all from the cache, two episodes of the last tree timed anew; a search's episode
 as it labels states with the agent and meets better, longer-lived trees) exceeds the time left
 and the grace. The last search the bisection can make spends the time left over on further
 restarts (up to ``EXTRA_RESTARTS`` times the asked number, until a restart reaches the target),
-since nothing after it needs the time. Ctrl-C or SIGTERM inside a step ends that step unfinished
-(nothing of it is cached) and the ladder returns what it has, marked as stopped. A rerun with a
-longer deadline resumes from the cache.
+since nothing after it needs the time. Time still left when the ladder ends, or stops before
+a step that would not fit, polishes again the searched BT nearest the target among those
+smaller than every BT that keeps it (:mod:`ibt.engine.polish`). Ctrl-C or SIGTERM inside a
+step ends that step unfinished (nothing of it is cached) and the ladder returns what it has,
+marked as stopped. A rerun with a longer deadline resumes from the cache.
 """
 
 from __future__ import annotations
 
-import time
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
-from ibt.engine import budgets, stages, synthesis
+from ibt.engine import budgets, polish, stages, synthesis
 from ibt.engine.agent import Agent
+from ibt.engine.deadline import PACE_EPISODES, Deadline, Pace
 from ibt.engine.parallel import parallel_map
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
@@ -66,7 +69,7 @@ class Candidate:
     """One tree of the front (distilled, refined or searched at a leaf limit) and its BTs."""
 
     leaf_limit: int
-    stage: str  # "distilled", "refined" or "searched"
+    stage: str  # "distilled", "refined", "searched" or "polished" (again, with time left)
     tree: Any
     bts: dict[str, Any]  # synthesiser -> verified BehaviorTree
     mean_return: float  # on the choice episodes (the tree's; every BT decides as it does)
@@ -114,41 +117,6 @@ class Candidate:
 EXTRA_RESTARTS = 4
 
 
-#: a step under way when the budget runs out may finish within this share of the budget past
-#: it (at least ``GRACE_MIN`` seconds), else it is cut: LunarLander's 30-minute runs ended
-#: 0-40 s past their budget with a search that began late and gave the run's best BT, while a
-#: 15-minute one was still in its first search at 16 minutes (a search there takes about 20
-#: minutes on two cores); a grace chosen after seeing those runs, to keep the former's search
-#: and cut the latter's
-GRACE_SHARE = 0.1
-GRACE_MIN = 60.0
-#: the pace of a rerun that read every measurement from the cache: its last tree timed anew
-PACE_EPISODES = 2
-
-
-class Deadline:
-    """A wall-clock budget from now (``None``: no limit)."""
-
-    def __init__(self, seconds: float | None, clock: Callable[[], float] = time.monotonic
-                 ) -> None:
-        self.seconds, self.clock = seconds, clock
-        self.start = clock()
-
-    def passed(self) -> bool:
-        return self.seconds is not None and self.clock() - self.start >= self.seconds
-
-    def elapsed(self) -> float:
-        return self.clock() - self.start
-
-    def left(self) -> float:
-        """Seconds left (infinite without a limit)."""
-        return float("inf") if self.seconds is None else self.seconds - self.elapsed()
-
-    def grace(self) -> float:
-        """Seconds past the budget a step under way may take before it is cut."""
-        return 0.0 if self.seconds is None else max(GRACE_MIN, GRACE_SHARE * self.seconds)
-
-
 @dataclass(frozen=True)
 class Settings:
     """What the ladder may do: the target, the rungs, restarts and the budgets' scale."""
@@ -176,37 +144,6 @@ class Ladder:
     steps: list[str] = field(default_factory=list)  # the steps done, in order
     skipped: list[str] = field(default_factory=list)  # the steps left undone by a stop
     notes: list[str] = field(default_factory=list)
-
-
-class Pace:
-    """How fast the run's tree measurements stepped, and how long their episodes were: the
-    least a step of ``episodes`` can take (each episode as long as the shorter of the agent's
-    and the measured trees' mean episode)."""
-
-    def __init__(self, agent_length: float | None = None) -> None:
-        self.agent_length = agent_length
-        self.seconds, self.steps, self.episodes = 0.0, 0, 0
-
-    def add(self, measured: stages.Returns) -> None:
-        """Count a measurement rolled out now (one read from the cache has no wall time)."""
-        if measured.seconds is not None and measured.lengths:
-            self.seconds += measured.seconds
-            self.steps += sum(measured.lengths)
-            self.episodes += len(measured.lengths)
-
-    def length(self) -> float:
-        """Steps an episode: the shorter of the agent's and the measured trees' mean."""
-        mean = self.steps / self.episodes if self.episodes else float("inf")
-        return min(mean, self.agent_length or float("inf"))
-
-    def least(self, episodes: float) -> float:
-        """Seconds ``episodes`` take at least (0 before any measurement was timed)."""
-        return episodes * self.length() * self.seconds / self.steps if self.steps else 0.0
-
-    def said(self, episodes: float) -> str:
-        return (f"{episodes:,.0f} episodes of {self.length():.0f} steps at the "
-                f"{1e6 * self.seconds / self.steps:.0f} us a step this run's tree measurements "
-                "took")
 
 
 class Stopped(Exception):
@@ -281,35 +218,48 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         took[kind] = max(took.get(kind, 0.0), seconds)
         running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
+        out.steps.append(name)
+        if tree is None:  # nothing better found (a polish again)
+            return None
         bts = synthesis.synthesise(cfg, agent, tree, settings.seed)
         ret = stages.measure(cfg, agent, tree, bts, choice)
         pace.add(ret)
         out.candidates.append(Candidate(
             leaves, stage, tree, bts, ret.mean, ret.std,
             _retention(ret.mean, agent_mean, random_mean), learner == "relational", info))
-        out.steps.append(name)
         return tree
 
+    def guarded(climb: Callable[[], None]) -> str | None:
+        """Run ``climb``; why it stopped (None: it ended), a cut step noted."""
+        try:
+            climb()
+        except Stopped as stop:
+            return str(stop)
+        except STOP_SIGNALS as err:  # Ctrl-C or SIGTERM inside a step: that step is not cached
+            return stop_reason(err)
+        except OverTime:  # a step ran past its grace: cut, as by Ctrl-C
+            out.notes.append(f"\"{running[0] if running else 'a step'}\" was cut "
+                             f"{deadline.grace():.0f} s past the time budget, unfinished (what "
+                             "of it was done, such as a search's finished restarts, is cached): "
+                             "a rerun with a longer --time lets it finish")
+            return "cut"
+        return None
+
     plan = _plan(settings, learners, agent.continuous)
-    try:
-        if settings.search and not agent.continuous:
-            target = random_mean + settings.keep * (agent_mean - random_mean)
-            _search_ladder(out, step, cfg, agent, settings, learners, deadline, target)
-        else:
-            _imitation_ladder(out, step, cfg, agent, settings, learners)
-            if agent.continuous:
-                out.notes.append("the structure search is for discrete actions: a Box task's "
-                                 "trees are distilled and refined (commands and thresholds)")
-    except Stopped as stop:
-        out.stopped = str(stop)
-    except STOP_SIGNALS as err:  # Ctrl-C or SIGTERM inside a step: that step is not cached
-        out.stopped = stop_reason(err)
-    except OverTime:  # a step ran past its grace: cut, as by Ctrl-C
-        out.stopped = "time"
-        out.notes.append(f"\"{running[0] if running else 'a step'}\" was cut "
-                         f"{deadline.grace():.0f} s past the time budget, unfinished (what of "
-                         "it was done, such as a search's finished restarts, is cached): a "
-                         "rerun with a longer --time lets it finish")
+    if settings.search and not agent.continuous:
+        target = random_mean + settings.keep * (agent_mean - random_mean)
+        out.stopped = guarded(partial(_search_ladder, out, step, cfg, agent, settings, learners,
+                                      deadline, target))
+        if out.stopped in (None, "time") and deadline.seconds is not None and not settings.full:
+            spare = guarded(partial(_spare_time, out, step, cfg, agent, settings, learners))
+            out.stopped = out.stopped if spare in (None, "time") else spare
+    else:
+        out.stopped = guarded(partial(_imitation_ladder, out, step, cfg, agent, settings,
+                                      learners))
+        if agent.continuous:
+            out.notes.append("the structure search is for discrete actions: a Box task's "
+                             "trees are distilled and refined (commands and thresholds)")
+    out.stopped = "time" if out.stopped == "cut" else out.stopped
     if out.stopped:
         out.skipped = running + [s for s in plan if s not in out.steps and s not in running]
     return out
@@ -411,6 +361,44 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             stages.refine, cfg, agent, distilled[leaves][name], settings.seed, settings.scale,
             settings.refine_episodes), leaves, "refined", name,
             episodes=_refine_length(cfg, agent, settings))
+
+
+def _spare_time(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
+                settings: Settings, learners: tuple[str, ...]) -> None:
+    """Time left over, the ladder done or stopped before a step that would not fit: the searched
+    BT nearest the target among those smaller than every BT that keeps it, polished again
+    (:mod:`ibt.engine.polish`: one seed a core, seeds after the search's restarts), again
+    while a polish fits, the last one improved it and it misses the target, at most
+    ``AGAIN_ROUNDS`` times."""
+    kept = min((c.bt_nodes for c in out.candidates if keeps(c, settings)), default=math.inf)
+    below = [c for c in out.candidates if c.stage == "searched" and c.search is not None
+             and eligible(c, settings) and c.bt_nodes < kept]
+    if not below:
+        return
+    best = max(below, key=lambda c: (c.retention, -c.bt_nodes))
+    leaves, learner, tree = best.leaf_limit, search_learner(learners), best.tree
+    first, width = best.search.seeds[-1] + 1, max(1, settings.n_jobs)  # after the restarts
+
+    def again(tree: Any, seeds: tuple[int, ...]) -> Any:
+        better, means = polish.polish_again(
+            cfg, agent, tree, leaves, settings.seed, seeds, relational=learner == "relational",
+            scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules)
+        out.notes.append(f"polished again at leaf limit {leaves} from seeds {list(seeds)}: "
+                         f"{', '.join(f'{m:.2f}' for m in means[1:])} on the search's choice "
+                         f"episodes against {means[0]:.2f} before; "
+                         + ("the best kept" if better is not None else "none kept"))
+        return better
+
+    for _ in range(polish.AGAIN_ROUNDS):
+        if tree is None or keeps(best, settings):
+            return
+        seeds = tuple(range(first, first + width))
+        first += width
+        tree = step(f"polish again {learner} at {leaves} leaves", partial(again, tree, seeds),
+                    leaves, "polished", learner, episodes=polish.again_length(
+                        cfg, agent.task, leaves, seeds=width, scale=settings.scale,
+                        n_jobs=settings.n_jobs))
+        best = out.candidates[-1] if tree is not None else best
 
 
 def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -41,7 +42,10 @@ def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_j
                 return list(Parallel(n_jobs=-1)(delayed(fn)(*a) for a in args))
         finally:
             client.close()
-    with parallel_config(backend="loky", n_jobs=n_jobs):
+    with parallel_config(backend="loky", n_jobs=n_jobs), warnings.catch_warnings():
+        # loky replaces a worker that its idle timeout stopped while a round of long items ran
+        # (LunarLander's restarts) and warns of it: the items run on, nothing to tell a user
+        warnings.filterwarnings("ignore", message="A worker stopped while some jobs")
         return list(Parallel()(delayed(fn)(*a) for a in args))
 
 

@@ -391,7 +391,7 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     most = restarts if next_round is None else max(restarts, most or restarts)
     quiet = replace(cfg, progress=cfg.progress and most == 1)
     width = max(1, min(n_jobs, most))
-    choice = selection_seeds(_choice_episodes(config), seed, offset=RESTART_CHOICE_OFFSET)
+    choice = selection_seeds(choice_episodes(config), seed, offset=RESTART_CHOICE_OFFSET)
     trees: list[Any] = []
     means: list[float] = []
     while len(trees) < most:
@@ -438,10 +438,10 @@ def search_length(cfg: Config, task: Task, leaves: int, *, restarts: int, scale:
     config = budgets.search_config(cfg, task, leaves, scale)
     rounds = wall(round_size(restarts, max(1, min(n_jobs, restarts))), n_jobs)  # then polishes
     return rounds * (config.episodes + budgets.polish_config(cfg, config).episodes
-                     + 2 * _choice_episodes(config))
+                     + 2 * choice_episodes(config))
 
 
-def _choice_episodes(config: Any) -> int:
+def choice_episodes(config: Any) -> int:
     """The held-out episodes that choose among a search's restarts (within the run's block)."""
     return min(RESTART_CHOICE_FACTOR * config.selection_episodes,
                SELECTION_BLOCK - RESTART_CHOICE_OFFSET)

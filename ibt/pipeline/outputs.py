@@ -89,8 +89,9 @@ def draw_front(rec: Recommendation, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     for stage, marker in (("distilled", "o"), ("refined", "s"), ("searched", "*"),
-                          ("distilled, relational", "^"), ("refined, relational", "D"),
-                          ("searched, relational", "P")):
+                          ("polished", "X"), ("distilled, relational", "^"),
+                          ("refined, relational", "D"), ("searched, relational", "P"),
+                          ("polished, relational", "p")):
         points = [c for c in rec.candidates if c.label == stage]
         if not points:
             continue
@@ -291,7 +292,9 @@ def report_text(rec: Recommendation, out: Path) -> str:
         "searched ones from the structure search by return (splits, features, thresholds and "
         "leaves evolved under the leaf limit from the trees distilled at that limit and at "
         "the largest limit distilled, relational ones included, helped by the agent's "
-        "labels), then polished. "
+        "labels), then polished; *polished* ones, made with time left over, from the "
+        "searched BT nearest the target among those smaller than every BT that kept it, "
+        "polished again (kept where that beat it on the search's own choice episodes). "
         "*Relational* trees come from the same loop with a learner whose splits may test "
         "`w1 * x_i + w2 * x_j` where that beats every single-feature split by a margin; one "
         "is recommended only where its BT is smaller than every single-feature one that keeps "

@@ -36,7 +36,8 @@ from tqdm import tqdm
 
 from ibt.engine import stages
 from ibt.engine.agent import RANDOM_SEED, Agent
-from ibt.engine.ladder import Candidate, Deadline, Ladder, Settings, eligible, run_ladder
+from ibt.engine.deadline import Deadline
+from ibt.engine.ladder import Candidate, Ladder, Settings, eligible, run_ladder
 from ibt.engine.stages import Returns, bt_digest, held_out
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
