@@ -226,7 +226,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="wall-clock budget such as 90s, 10m, 1h30m; the best BT found by then "
                     "is recommended (default 10m); a step under way may finish within a tenth of "
                     "the budget (at least 1m) past it, else it is cut, and a first search sure "
-                    "to be cut is not started; a rerun with more time resumes from the cache")
+                    "to be cut is not started; time left over polishes again the searched BT "
+                    "nearest the target; a rerun with more time resumes from the cache")
     pl.add_argument("--max-nodes", type=MAX_NODES, default=None, metavar="N",
                     help="recommend only BTs of at most N nodes")
     pl.add_argument("--restarts", type=RESTARTS, default=3, metavar="K",
