@@ -9,6 +9,7 @@ import math
 import shutil
 import sys
 from dataclasses import replace
+from types import SimpleNamespace
 
 import pytest
 from hypothesis import given
@@ -503,6 +504,7 @@ def test_time_left_over_polishes_again_the_searched_bt_nearest_the_target(agents
     search's choice episodes, at most ``AGAIN_ROUNDS`` times; without a deadline, never."""
     import ibt
     from ibt.engine import polish
+    from ibt.pipeline.outputs import ladder_text
 
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = _line_agent(agents)
@@ -522,3 +524,8 @@ def test_time_left_over_polishes_again_the_searched_bt_nearest_the_target(agents
     assert len(polished) == sum(n.endswith("the best kept") for n in notes)
     assert len(notes) == len(again) and (len(again) == polish.AGAIN_ROUNDS
                                          or notes[-1].endswith("none kept"))
+    said = "\n".join(ladder_text(SimpleNamespace(ladder=ladder, time_limit=3600.0, elapsed=1.0,
+                                                 candidates=ladder.candidates, max_nodes=None)))
+    assert "With time left over, the searched BT nearest the target" in said
+    assert f"Note: {notes[0]}." in said
+

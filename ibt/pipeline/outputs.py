@@ -185,6 +185,11 @@ def ladder_text(rec: Recommendation) -> list[str]:
                   "kept it, the trees that kept it refined by return. A Box task's trees are "
                   "distilled then refined at each limit instead.", ""]
     lines += [f"Steps done: {', '.join(ladder.steps)}.", ""]
+    if any(step.startswith("polish again") for step in ladder.steps):
+        lines += ["With time left over, the searched BT nearest the target among those smaller "
+                  "than every BT that kept it was polished again, one seed a core at twice the "
+                  "search's polish episodes, and kept where that beat it on the search's own "
+                  "choice episodes (the notes give the means).", ""]
     for c in rec.candidates:
         if c.search is not None:
             means = ", ".join(f"seed {s}: {m:.2f}" for s, m in zip(c.search.seeds,
