@@ -371,13 +371,13 @@ def _spare_time(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent
     while a polish fits, the last one improved it and it misses the target, at most
     ``AGAIN_ROUNDS`` times."""
     kept = min((c.bt_nodes for c in out.candidates if keeps(c, settings)), default=math.inf)
-    below = [c for c in out.candidates if c.stage == "searched" and c.search is not None
-             and eligible(c, settings) and c.bt_nodes < kept]
+    below = [(c, c.search) for c in out.candidates if c.stage == "searched"
+             and c.search is not None and eligible(c, settings) and c.bt_nodes < kept]
     if not below:
         return
-    best = max(below, key=lambda c: (c.retention, -c.bt_nodes))
+    best, info = max(below, key=lambda pair: (pair[0].retention, -pair[0].bt_nodes))
     leaves, learner, tree = best.leaf_limit, search_learner(learners), best.tree
-    first, width = best.search.seeds[-1] + 1, max(1, settings.n_jobs)  # after the restarts
+    first, width = info.seeds[-1] + 1, max(1, settings.n_jobs)  # after the restarts
 
     def again(tree: Any, seeds: tuple[int, ...]) -> Any:
         better, means = polish.polish_again(
