@@ -218,8 +218,8 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         took[kind] = max(took.get(kind, 0.0), seconds)
         running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
-        out.steps.append(name)
         if tree is None:  # nothing better found (a polish again)
+            out.steps.append(name)
             return None
         bts = synthesis.synthesise(cfg, agent, tree, settings.seed)
         ret = stages.measure(cfg, agent, tree, bts, choice)
@@ -227,6 +227,7 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         out.candidates.append(Candidate(
             leaves, stage, tree, bts, ret.mean, ret.std,
             _retention(ret.mean, agent_mean, random_mean), learner == "relational", info))
+        out.steps.append(name)
         return tree
 
     def guarded(climb: Callable[[], None]) -> str | None:
