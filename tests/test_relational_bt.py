@@ -137,7 +137,7 @@ def _with_condition(condition: dict) -> str:
     ({"type": "condition", "form": {"features": [0, 1]}, "op": "<=", "threshold": 0},
      "features.*weights"),
     ({"type": "condition", "form": {"features": [0, 1, 2], "weights": [1, 1, 1]}, "op": "<=",
-      "threshold": 0}, "two features and two weights"),
+      "threshold": 0}, "ibt-behavior-tree/2"),
     ({"type": "condition", "form": {"features": [0, 7], "weights": [1, -1]}, "op": "<=",
       "threshold": 0}, "feature 7"),
     ({"type": "condition", "feature": 0, "form": {"features": [0, 1], "weights": [1, -1]},

@@ -250,7 +250,8 @@ def unreached_state(tree: BehaviorTree) -> np.ndarray | None:
     if _facts(tree.root, memo).acts:
         return None
     forms = sorted({node.form for node in tree.nodes()
-                    if isinstance(node, Condition) and node.form is not None})
+                    if isinstance(node, Condition) and node.form is not None},
+                   key=lambda form: (len(form.terms), form.terms))
     columns = {form: tree.n_features + k for k, form in enumerate(forms)}
     region = _uncovered(_acting(tree.root, memo, columns), relational=bool(columns))
     if region is None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from ibt.bt.linear import LinearForm
+from ibt.bt.linear import MAX_TERMS, ObliqueForm, form_from_json
 from ibt.bt.model import (
     MAX_DEPTH,
     NODE_TYPES,
@@ -32,6 +32,10 @@ from ibt.bt.model import (
 )
 
 FORMAT = "ibt-behavior-tree/1"
+#: the format of a BT with linear commands or oblique tests (1, 3 or 4 terms); every other BT is
+#: written as before, so its file and digest do not change
+FORMAT_LINEAR = "ibt-behavior-tree/2"
+FORMATS = (FORMAT, FORMAT_LINEAR)
 TICK_RULE = ("condition succeeds iff float64(float32(obs[feature])) op threshold; an action "
              "succeeds and is the decision; selector/fallback succeed at the first success; "
              "sequence fails at the first failure; inverter flips")
@@ -39,6 +43,13 @@ TICK_RULE = ("condition succeeds iff float64(float32(obs[feature])) op threshold
 RELATIONAL_TICK_RULE = ("; a condition with a form {features: [i, j], weights: [w1, w2]} "
                         "succeeds iff (w1 * x[i]) + (w2 * x[j]) op threshold, computed in "
                         "float64 left to right with x = float64(float32(obs))")
+# the rule of a format-2 document: forms of any number of terms, and linear commands
+LINEAR_TICK_RULE = (f"; a condition with a form {{features: [f1, ..., fk], weights: [w1, ..., wk]}}"
+                    f" (k <= {MAX_TERMS}) succeeds iff w1 * x[f1] + ... + wk * x[fk] op "
+                    "threshold, summed in float64 left to right with x = float64(float32(obs)); "
+                    "dimension d of a command with terms sends values[d] + w1 * x[f1] + ... + "
+                    "wk * x[fk], summed in float64 left to right, which the environment clips "
+                    "to its action space")
 DOCUMENT_KEYS = frozenset({"format", "feature_names", "action_names", "tick_rule",
                            "value_labels", "commands", "root"})
 
@@ -72,11 +83,13 @@ def tree_to_dict(bt: BehaviorTree) -> dict[str, Any]:
     by :func:`tree_from_dict`)."""
     extra = ({"value_labels": {bt.feature_names[f]: list(v) for f, v in bt.value_labels}}
              if bt.value_labels else {})
+    linear = needs_linear_format(bt)
+    rule = (LINEAR_TICK_RULE if linear else RELATIONAL_TICK_RULE if bt.relational_count else "")
     return {
-        "format": "ibt-behavior-tree/1",
+        "format": FORMAT_LINEAR if linear else FORMAT,
         "feature_names": list(bt.feature_names),
         "action_names": list(bt.action_names),
-        "tick_rule": TICK_RULE + (RELATIONAL_TICK_RULE if bt.relational_count else ""),
+        "tick_rule": TICK_RULE + rule,
         **extra,
         **({"commands": bt.commands.to_dict()} if bt.commands is not None else {}),
         "root": node_to_dict(bt.root),
@@ -99,10 +112,13 @@ def tree_from_dict(cls: type[BehaviorTree], doc: Any) -> BehaviorTree:
     if unknown:
         raise ValueError(f"unknown key {unknown[0]!r:.60} in a behavior-tree document; "
                          f"expected {', '.join(sorted(DOCUMENT_KEYS))}")
-    if doc.get("format", FORMAT) != FORMAT:
-        raise ValueError(f"format {doc['format']!r:.60} is not {FORMAT!r}, the one this "
-                         "version reads")
-    if doc.get("tick_rule", TICK_RULE) not in (TICK_RULE, TICK_RULE + RELATIONAL_TICK_RULE):
+    written = doc.get("format", FORMAT)
+    if written not in FORMATS:
+        raise ValueError(f"format {written!r:.60} is not one this version reads "
+                         f"({' or '.join(FORMATS)})")
+    rules = ((TICK_RULE + LINEAR_TICK_RULE,) if written == FORMAT_LINEAR
+             else (TICK_RULE, TICK_RULE + RELATIONAL_TICK_RULE))
+    if doc.get("tick_rule", rules[0]) not in rules:
         raise ValueError("its tick_rule is not the rule this version ticks by (a BT "
                          "written for other semantics would not decide as its author meant);"
                          " remove the key or write the BT with this version")
@@ -122,8 +138,17 @@ def tree_from_dict(cls: type[BehaviorTree], doc: Any) -> BehaviorTree:
                 if "commands" in doc else None)
     tree = cls(root=node_from_dict(doc["root"]), feature_names=names,
                action_names=action_names, value_labels=tuple(labels), commands=commands)
+    if written == FORMAT and needs_linear_format(tree):
+        raise ValueError(f"a BT with linear commands or tests of 1, 3 or 4 features is format "
+                         f"{FORMAT_LINEAR!r}; write that format")
     tree.validate()
     return tree
+
+
+def needs_linear_format(bt: BehaviorTree) -> bool:
+    """Does ``bt`` use what format 2 added (linear commands, oblique forms)?"""
+    return (bt.commands is not None and bt.commands.linear) or any(
+        isinstance(node, Condition) and isinstance(node.form, ObliqueForm) for node in bt.nodes())
 
 def node_to_dict(node: Node) -> dict[str, Any]:
     if isinstance(node, Condition) and node.form is not None:
@@ -170,7 +195,7 @@ def node_from_dict(doc: Any, where: str = "root", depth: int = 0) -> Node:
                          f"{', '.join(sorted(keys))}")
     try:
         if kind == "condition" and "form" in doc:
-            return Condition.relational(LinearForm.from_json(doc["form"]), doc["op"],
+            return Condition.relational(form_from_json(doc["form"]), doc["op"],
                                         doc["threshold"])
         if kind == "condition":
             return Condition(doc["feature"], doc["op"], doc["threshold"])

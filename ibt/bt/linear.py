@@ -39,6 +39,29 @@ DEFAULT_WEIGHTS: tuple[tuple[float, float], ...] = (
 )
 
 
+def checked_weight(value: Any, name: str) -> float:
+    """A form's weight as a double: finite, non-zero and normal (BehaviorTree.CPP's number
+    parser rejects subnormal doubles), one rule wherever a BT is read, run or exported."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer
+                                                 | np.floating):
+        raise ValueError(f"a linear form's weight {name} must be a number, "
+                         f"got {value!r:.60}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond the double range
+        number = math.inf
+    if isinstance(value, int | np.integer) and number != int(value):
+        number = math.inf  # an integer a double does not hold: not read exactly
+    # one rule wherever a BT is read, run or exported: BehaviorTree.CPP's number parser
+    # rejects subnormal doubles, so a weight must be a normal double
+    if not sys.float_info.min <= abs(number) < math.inf:
+        raise ValueError(f"a linear form's weight {name} must be finite and non-zero, "
+                         f"and not subnormal (at least {sys.float_info.min:.4g} in "
+                         "magnitude; a number a double holds exactly), got "
+                         f"{value!r:.60}")
+    return number
+
+
 @dataclass(frozen=True, order=True)
 class LinearForm:
     """``w1 * x[i] + w2 * x[j]`` with ``i != j``; weights finite and non-zero."""
@@ -58,25 +81,16 @@ class LinearForm:
         if self.i == self.j:
             raise ValueError(f"a linear form needs two different features, got {self.i} twice")
         for name in ("w1", "w2"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float | np.integer
-                                                         | np.floating):
-                raise ValueError(f"a linear form's weight {name} must be a number, "
-                                 f"got {value!r:.60}")
-            try:
-                number = float(value)
-            except OverflowError:  # an integer beyond the double range
-                number = math.inf
-            if isinstance(value, int | np.integer) and number != int(value):
-                number = math.inf  # an integer a double does not hold: not read exactly
-            # one rule wherever a BT is read, run or exported: BehaviorTree.CPP's number parser
-            # rejects subnormal doubles, so a weight must be a normal double
-            if not sys.float_info.min <= abs(number) < math.inf:
-                raise ValueError(f"a linear form's weight {name} must be finite and non-zero, "
-                                 f"and not subnormal (at least {sys.float_info.min:.4g} in "
-                                 "magnitude; a number a double holds exactly), got "
-                                 f"{value!r:.60}")
-            object.__setattr__(self, name, number)
+            object.__setattr__(self, name, checked_weight(getattr(self, name), name))
+
+    @property
+    def terms(self) -> tuple[tuple[int, float], ...]:
+        """``((i, w1), (j, w2))``: the form as its terms, in the order they are added."""
+        return ((self.i, self.w1), (self.j, self.w2))
+
+    @property
+    def features(self) -> tuple[int, ...]:
+        return (self.i, self.j)
 
     def value(self, features: np.ndarray) -> np.ndarray:
         """The form on rows of *already widened* features (float32 values as doubles)."""
@@ -106,6 +120,122 @@ class LinearForm:
                 and len(features) == 2 and len(weights) == 2):
             raise ValueError(f"a linear form has two features and two weights, got {doc!r:.80}")
         return cls(features[0], features[1], weights[0], weights[1])
+
+
+MAX_TERMS = 4  #: the most features one oblique test or one linear command reads
+
+
+@dataclass(frozen=True)
+class ObliqueForm:
+    """``w1 * x[f1] + ... + wk * x[fk]`` over one, three or four distinct features (two are a
+    :class:`LinearForm`: build either with :func:`linear_form`), summed in double left to
+    right, the floating-point rule of this module: ``((w1 * x1) + (w2 * x2)) + (w3 * x3)``."""
+
+    features: tuple[int, ...]
+    weights: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        features, weights = tuple(self.features), tuple(self.weights)
+        if not 1 <= len(features) <= MAX_TERMS or len(features) == 2:
+            raise ValueError(f"an oblique form has 1, 3 or {MAX_TERMS} terms (two are a "
+                             f"LinearForm: use linear_form), got {len(features)}")
+        if len(weights) != len(features):
+            raise ValueError(f"an oblique form needs one weight per feature, got "
+                             f"{len(features)} features and {len(weights)} weights")
+        for f in features:
+            if isinstance(f, bool) or not isinstance(f, int | np.integer) or f < 0:
+                raise ValueError(f"an oblique form's features must be non-negative integer "
+                                 f"indices, got {f!r:.60}")
+        if len(set(features)) != len(features):
+            raise ValueError(f"an oblique form reads each feature once, got {features}")
+        object.__setattr__(self, "features", tuple(int(f) for f in features))
+        object.__setattr__(self, "weights", tuple(checked_weight(w, f"w{k + 1}")
+                                                  for k, w in enumerate(weights)))
+
+    @property
+    def terms(self) -> tuple[tuple[int, float], ...]:
+        return tuple(zip(self.features, self.weights, strict=True))
+
+    @property
+    def i(self) -> int:
+        """The first feature (a condition's ``feature``)."""
+        return self.features[0]
+
+    def value(self, features: np.ndarray) -> np.ndarray:
+        """The form on rows of *already widened* features, by the floating-point rule."""
+        x = np.asarray(features, dtype=np.float64)
+        total = self.weights[0] * x[..., self.features[0]]
+        for f, w in zip(self.features[1:], self.weights[1:], strict=True):
+            total = total + w * x[..., f]
+        return total
+
+    def text(self, names: Sequence[str]) -> str:
+        """``0.5 * x + vx - angle``."""
+        return terms_text(self.terms, names)
+
+    def script(self, keys: Sequence[str]) -> str:
+        """The BehaviorTree.CPP script expression: exact weights, same order of operations
+        (:func:`script_sum`)."""
+        return script_sum([f"{w!r} * {keys[f]}" for f, w in self.terms])
+
+    def to_json(self) -> dict[str, Any]:
+        return {"features": list(self.features), "weights": list(self.weights)}
+
+    def sort_key(self) -> tuple[Any, ...]:
+        return (self.features, self.weights)
+
+
+Form = LinearForm | ObliqueForm
+
+
+def linear_form(terms: Sequence[tuple[int, float]]) -> Form:
+    """The form of ``terms`` (feature, weight), in that order: a :class:`LinearForm` for two
+    terms (the relational learner's shape), else an :class:`ObliqueForm`."""
+    terms = list(terms)
+    if len(terms) == 2:
+        (i, w1), (j, w2) = terms
+        return LinearForm(i, j, w1, w2)
+    return ObliqueForm(tuple(f for f, _ in terms), tuple(w for _, w in terms))
+
+
+def form_from_json(doc: Any) -> Form:
+    """A form written by ``to_json``: ``{"features": [...], "weights": [...]}``, 1 to
+    :data:`MAX_TERMS` terms."""
+    if not isinstance(doc, dict) or set(doc) != {"features", "weights"}:
+        raise ValueError("a linear form must be {\"features\": [i, j, ...], \"weights\": "
+                         f"[w1, w2, ...]}}, got {doc!r:.80}")
+    features, weights = doc["features"], doc["weights"]
+    if not (isinstance(features, list) and isinstance(weights, list)
+            and 1 <= len(features) <= MAX_TERMS and len(weights) == len(features)):
+        raise ValueError(f"a linear form has 1 to {MAX_TERMS} features and one weight each, "
+                         f"got {doc!r:.80}")
+    return linear_form(list(zip(features, weights, strict=True)))
+
+
+def script_sum(parts: Sequence[str]) -> str:
+    """``((p1 + p2) + p3) + p4``: a sum BehaviorTree.CPP adds left to right.
+
+    Its script parser groups ``a + b + c`` as ``a + (b + c)`` (checked with behaviortreepy
+    0.1.4: ``1e16 + -1e16 + 1.0`` gives 0.0), so a sum of three or more parts is written with
+    explicit parentheses; one of two parts needs none."""
+    text = parts[0]
+    for k, part in enumerate(parts[1:]):
+        text = f"{text} + {part}" if k == 0 else f"({text}) + {part}"
+    return text
+
+
+def terms_text(terms: Sequence[tuple[int, float]], names: Sequence[str],
+               bias: float | None = None) -> str:
+    """As a reader writes a sum: ``-1 + 10 * y - 10 * vy``, ``0.5 * x + vx - angle``."""
+    parts: list[str] = []
+    if bias is not None and (bias != 0.0 or not terms):
+        parts.append(f"{bias:g}")
+    for f, w in terms:
+        if not parts:
+            parts.append(_term(w, names[f], leading=True))
+        else:
+            parts.append(f"{'-' if w < 0 else '+'} {_term(abs(w), names[f], leading=False)}")
+    return " ".join(parts)
 
 
 def _term(weight: float, name: str, *, leading: bool) -> str:

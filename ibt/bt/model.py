@@ -29,12 +29,13 @@ import json
 import math
 from collections import Counter
 from collections.abc import Iterator
+from collections.abc import Sequence as Seq
 from dataclasses import dataclass, field
 from typing import Any, Union
 
 import numpy as np
 
-from ibt.bt.linear import LinearForm
+from ibt.bt.linear import MAX_TERMS, Form, LinearForm, ObliqueForm, checked_weight, terms_text
 
 OPS = ("<=", ">")
 MAX_DEPTH = 100  # levels below the root a BT may have (the committed ones have at most 7)
@@ -56,7 +57,7 @@ class Condition:
     feature: int
     op: str
     threshold: float
-    form: LinearForm | None = None
+    form: Form | None = None
 
     def __post_init__(self) -> None:
         if self.op not in OPS:
@@ -65,27 +66,28 @@ class Condition:
         object.__setattr__(self, "feature", _index(self.feature, "a condition's feature"))
         object.__setattr__(self, "threshold", _finite(self.threshold))
         if self.form is not None:
-            if not isinstance(self.form, LinearForm):
-                raise ValueError(f"a condition's form must be a LinearForm, got {self.form!r:.60}")
+            if not isinstance(self.form, LinearForm | ObliqueForm):
+                raise ValueError(f"a condition's form must be a LinearForm or ObliqueForm, got "
+                                 f"{self.form!r:.60}")
             if self.feature != self.form.i:
                 raise ValueError(f"a relational condition's feature is its form's first "
                                  f"feature {self.form.i}, got {self.feature}; build it with "
                                  "Condition.relational(form, op, threshold)")
-            if not math.isfinite(FLOAT32_MAX * (abs(self.form.w1) + abs(self.form.w2))):
+            if not math.isfinite(FLOAT32_MAX * sum(abs(w) for _, w in self.form.terms)):
                 raise ValueError(f"the weights of {self.form} are too large: a form must stay "
                                  "finite in double on every float32 observation")
 
     type = "condition"
 
     @classmethod
-    def relational(cls, form: LinearForm, op: str, threshold: float) -> Condition:
+    def relational(cls, form: Form, op: str, threshold: float) -> Condition:
         """``form op threshold``: a relational condition."""
         return cls(form.i, op, threshold, form)
 
     @property
     def features(self) -> tuple[int, ...]:
         """The features the condition reads."""
-        return (self.feature,) if self.form is None else (self.form.i, self.form.j)
+        return (self.feature,) if self.form is None else tuple(self.form.features)
 
     def value(self, x: np.ndarray) -> Any:
         """The compared value on widened features (one row or a batch): the feature's column,
@@ -189,35 +191,82 @@ class Selector(Fallback):
 Node = Union[Selector, Fallback, Sequence, Inverter, Condition, Action]  # noqa: UP007
 
 
+Terms = tuple[tuple[int, float], ...]  #: a linear command's terms (feature, weight), in sum order
+
+
 @dataclass(frozen=True)
 class Commands:
     """What each action of a BT for continuous actions sends: action ``i`` is the command
-    ``values[i]``, one number per named dimension (``dimensions``, with ``units``).
+    ``values[i]``, one number per named dimension (``dimensions``, with ``units``), plus, for a
+    *linear* command, its ``terms``: dimension ``d`` of command ``i`` is then
+    ``values[i][d] + w1 * x[f1] + ... + wk * x[fk]`` over ``terms[i][d]`` (at most
+    :data:`ibt.bt.linear.MAX_TERMS` features), computed in double left to right on the widened
+    float32 observation, the floating-point rule of :mod:`ibt.bt.linear`. The environment clips
+    what it receives to its action space; :meth:`evaluate` does not clip.
 
-    JSON (the ``commands`` key of a BT document)::
+    JSON (the ``commands`` key of a BT document; ``terms`` only where a command is linear)::
 
         "commands": {"dimensions": ["main_engine", "side_engine"],
                      "units": ["throttle", "throttle"],
-                     "values": [[0.8, -0.3], [-1.0, 0.0]]}
+                     "values": [[-1.0, 0.0], [-1.0, 0.0]],
+                     "terms": [[[[1, 10.0], [3, -10.0]], []], [[], []]]}
 
     ``values`` has one row per entry of ``action_names`` (the command's name), each row one
-    finite number per dimension.
+    finite number per dimension; ``terms`` one list per command and dimension of
+    ``[feature, weight]`` pairs.
     """
 
     dimensions: tuple[str, ...]
     units: tuple[str, ...]
     values: tuple[tuple[float, ...], ...]
+    terms: tuple[tuple[Terms, ...], ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.terms is None:
+            return
+        if len(self.terms) != len(self.values) or any(len(row) != len(self.dimensions)
+                                                       for row in self.terms):
+            raise ValueError("commands.terms must hold one list of terms per command and "
+                             "dimension")
+        for i, row in enumerate(self.terms):
+            for d, terms in enumerate(row):
+                features = [f for f, _ in terms]
+                if len(terms) > MAX_TERMS or len(set(features)) != len(features):
+                    raise ValueError(f"command {i}, dimension {d}: at most {MAX_TERMS} terms, "
+                                     "each feature once")
+                for f, w in terms:
+                    _index(f, f"command {i}'s feature")
+                    checked_weight(w, f"of command {i}")
+                if not math.isfinite(FLOAT32_MAX * sum(abs(w) for _, w in terms)):
+                    raise ValueError(f"command {i}, dimension {d}: weights too large to stay "
+                                     "finite in double on every float32 observation")
+        if not any(row_terms for row in self.terms for row_terms in row):
+            object.__setattr__(self, "terms", None)  # all constant: the plain form
+
+    @property
+    def linear(self) -> bool:
+        """Does some command depend on the features?"""
+        return self.terms is not None
+
+    @property
+    def features(self) -> tuple[int, ...]:
+        """Every feature some command reads, in index order."""
+        return tuple(sorted({f for row in self.terms or () for terms in row for f, _ in terms}))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"dimensions": list(self.dimensions), "units": list(self.units),
-                "values": [list(v) for v in self.values]}
+        doc: dict[str, Any] = {"dimensions": list(self.dimensions), "units": list(self.units),
+                               "values": [list(v) for v in self.values]}
+        if self.terms is not None:
+            doc["terms"] = [[[[f, w] for f, w in terms] for terms in row] for row in self.terms]
+        return doc
 
     @classmethod
     def from_dict(cls, doc: Any, n_actions: int) -> Commands:
         """Read and check a ``commands`` document: ``ValueError`` names the first problem."""
-        if not isinstance(doc, dict) or set(doc) != {"dimensions", "units", "values"}:
+        keys = {"dimensions", "units", "values"}
+        if not isinstance(doc, dict) or set(doc) not in (keys, keys | {"terms"}):
             raise ValueError("commands must be an object with exactly 'dimensions', 'units' "
-                             "and 'values'")
+                             "and 'values' (and 'terms' for linear commands)")
         dims = checked_names(doc["dimensions"], "commands.dimensions")
         units = doc["units"]
         if not isinstance(units, list) or len(units) != len(dims) or not all(
@@ -236,11 +285,65 @@ class Commands:
                                  f"fits in float32 (at most {FLOAT32_MAX:.8g} in magnitude; one "
                                  "a double holds exactly); give every command such values")
             rows.append(tuple(float(v) for v in row))
-        return cls(dims, tuple(units), tuple(rows))
+        terms = None
+        if "terms" in doc:
+            terms = _terms_from_doc(doc["terms"], n_actions, len(dims))
+        return cls(dims, tuple(units), tuple(rows), terms)
 
     def array(self) -> np.ndarray:
-        """The commands as a float32 matrix ``(n_actions, dimensions)``."""
+        """The commands' constant parts as a float32 matrix ``(n_actions, dimensions)``."""
         return np.asarray(self.values, dtype=np.float32).reshape(len(self.values), -1)
+
+    def evaluate(self, ids: np.ndarray, features: np.ndarray) -> np.ndarray:
+        """The command vectors ``(n, dimensions)`` in double sent on widened feature rows
+        ``(n, n_features)`` whose decisions are ``ids`` (the floating-point rule; not clipped)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        out = np.asarray(self.values, dtype=np.float64).reshape(len(self.values), -1)[ids]
+        if self.terms is None:
+            return out
+        x = np.asarray(features, dtype=np.float64)
+        for i, row in enumerate(self.terms):
+            rows = ids == i
+            if not rows.any():
+                continue
+            for d, terms in enumerate(row):
+                total = out[rows, d]
+                for f, w in terms:
+                    total = total + w * x[rows, f]
+                out[rows, d] = total
+        return out
+
+    def text(self, action: int, feature_names: Seq[str], precision: int = 4) -> list[str]:
+        """One line per dimension: ``main_engine := -1 + 10 * y - 10 * vy``."""
+        out = []
+        for d, name in enumerate(self.dimensions):
+            terms = self.terms[action][d] if self.terms is not None else ()
+            rounded = tuple((f, float(f"{w:.{precision}g}")) for f, w in terms)
+            bias = float(f"{self.values[action][d]:.{precision}g}")
+            out.append(f"{name} := {terms_text(rounded, feature_names, bias)}")
+        return out
+
+
+def _terms_from_doc(doc: Any, n_actions: int, n_dims: int) -> tuple[tuple[Terms, ...], ...]:
+    """``commands.terms`` read strictly: ``[[[[feature, weight], ...] per dimension] per
+    command]``."""
+    if not isinstance(doc, list) or len(doc) != n_actions:
+        raise ValueError(f"commands.terms must hold one entry per command ({n_actions})")
+    rows = []
+    for i, row in enumerate(doc):
+        if not isinstance(row, list) or len(row) != n_dims:
+            raise ValueError(f"commands.terms[{i}] must hold one list of terms per dimension")
+        dims = []
+        for d, terms in enumerate(row):
+            if not isinstance(terms, list) or not all(
+                    isinstance(t, list) and len(t) == 2 for t in terms):
+                raise ValueError(f"commands.terms[{i}][{d}] must be a list of [feature, "
+                                 "weight] pairs")
+            dims.append(tuple((_index(f, f"commands.terms[{i}][{d}]'s feature"),
+                               checked_weight(w, f"in commands.terms[{i}][{d}]"))
+                              for f, w in terms))
+        rows.append(tuple(dims))
+    return tuple(rows)
 
 
 @dataclass(frozen=True)
@@ -352,6 +455,10 @@ class BehaviorTree:
                                  f"{len(self.action_names)} actions")
             if isinstance(node, Fallback | Sequence) and not node.children:
                 raise ValueError(f"a {node.type} without children")
+        if self.commands is not None and self.commands.features and not (
+                self.commands.features[-1] < len(self.feature_names)):
+            raise ValueError(f"a command reads feature {self.commands.features[-1]}, but the "
+                             f"tree names {len(self.feature_names)} features")
         from ibt.bt.coverage import unreached_state
         from ibt.bt.executors import decide_batch
 

@@ -26,9 +26,9 @@ MAX_STEPS = 256  # float32 steps a crossing search walks from its first guess
 
 def _coefficients(what: int | LinearForm, n_features: int) -> np.ndarray:
     a = np.zeros(n_features)
-    if isinstance(what, LinearForm):
-        a[what.i] += what.w1
-        a[what.j] += what.w2
+    if not isinstance(what, int | np.integer):
+        for feature, weight in what.terms:
+            a[feature] += weight
     else:
         a[what] = 1.0
     return a
@@ -40,7 +40,7 @@ def satisfies(row: np.ndarray, tests: Sequence[Test]) -> bool:
     if not np.isfinite(x).all():
         return False
     for what, threshold, le in tests:
-        value = what.value(x) if isinstance(what, LinearForm) else x[what]
+        value = x[what] if isinstance(what, int | np.integer) else what.value(x)
         if bool(value <= threshold) != le:
             return False
     return True

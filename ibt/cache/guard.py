@@ -87,6 +87,10 @@ KIND_SOURCES: dict[str, tuple[str, ...]] = {
                       "refine/structure.py", "refine/structure_mutations.py",
                       "refine/forest.py", "distill/relational.py", "bt/linear.py",
                       "runs/relational_search.py", *_TREES, *_ROLLOUT),
+    "controller-distil": ("distill/controller.py", "distill/loop.py", "distill/schedules.py",
+                          "runs/controllers.py", "bt/linear.py", *_AGENTS, *_ROLLOUT),
+    "controller-refine": ("refine/controller.py", "refine/by_return.py",
+                          "distill/controller.py", "runs/controllers.py", *_ROLLOUT),
 }
 
 

@@ -87,6 +87,9 @@ CODE_VERSIONS: dict[str, int] = {
     "evolve-select": 1,  # evolve_rel_cached: its search chosen again on more held-out episodes
     # the pipeline: per-episode returns of a policy on a block of held-out episodes
     "returns": 1,  # ibt.engine.stages.returns_of
+    # controller trees (linear commands): ibt.runs.controllers
+    "controller-distil": 1,  # distilled: ibt.distill.controller.distill_controller
+    "controller-refine": 1,  # refined: ibt.refine.controller.refine_controller
 }
 READS_ENV = "IBT_CACHE_READS"
 

@@ -36,9 +36,8 @@ class NotCompilable(ValueError):
 def _expr(node: Node) -> str:
     """A boolean Python expression for an action-free subtree."""
     if isinstance(node, Condition) and node.form is not None:  # the floating-point rule
-        f = node.form
-        return (f"({f.w1!r} * x[{f.i}] + {f.w2!r} * x[{f.j}] {node.op} "
-                f"{node.threshold!r})")
+        total = " + ".join(f"{w!r} * x[{i}]" for i, w in node.form.terms)
+        return f"({total} {node.op} {node.threshold!r})"
     if isinstance(node, Condition):
         return f"(x[{node.feature}] {node.op} {node.threshold!r})"
     if isinstance(node, Inverter):

@@ -44,7 +44,7 @@ from collections.abc import Sequence as Seq
 
 import numpy as np
 
-from ibt.bt.linear import LinearForm
+from ibt.bt.linear import LinearForm, linear_form, script_sum
 from ibt.bt.model import (
     Action,
     BehaviorTree,
@@ -79,6 +79,8 @@ BUILTIN_IDS = frozenset("""
     """.split()) | {CONDITION_ID}
 _CODE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>)\s*(\S+)\s*$")
 _KEY = r"([A-Za-z_][A-Za-z0-9_]*)"
+_TERM = re.compile(rf"^\s*(\S+)\s*\*\s*{_KEY}\s*$")
+_OBLIQUE_CODE = re.compile(r"^\s*(.+?)\s+(<=|>)\s+(\S+)\s*$")
 _FORM_CODE = re.compile(rf"^\s*(\S+)\s*\*\s*{_KEY}\s*\+\s*(\S+)\s*\*\s*{_KEY}\s*(<=|>)\s*(\S+)\s*$")
 #: the same, both sides scaled (a subnormal threshold): ``(w1 * a + w2 * b) * SCALE op T``
 _SCALED_FORM_CODE = re.compile(rf"^\s*\(\s*(\S+)\s*\*\s*{_KEY}\s*\+\s*(\S+)\s*\*\s*{_KEY}\s*\)"
@@ -189,12 +191,19 @@ def command_keys(bt: BehaviorTree) -> list[str]:
 
 
 def command_code(bt: BehaviorTree, action: int, keys: Seq[str]) -> str:
-    """The ``Script`` code of a command: ``command := 2; main_engine := 0.8; ...``."""
+    """The ``Script`` code of a command: ``command := 2; main_engine := 0.8; ...``; a linear
+    command's dimension is ``main_engine := -1.0 + 10.0 * y + -10.0 * vy`` (numbers by
+    ``repr``: the engine sums left to right in double, the floating-point rule of
+    :mod:`ibt.bt.linear`, so it sends exactly what ``ibt`` sends)."""
     assert bt.commands is not None
     values = bt.commands.values[action]
+    terms = (bt.commands.terms[action] if bt.commands.terms is not None
+             else ((),) * len(values))
+    feature_keys = blackboard_keys(bt.feature_names)
     return "; ".join([f"{keys[0]} := {action}",
-                      *(f"{key} := {threshold_text(v)}" for key, v in
-                        zip(keys[1:], values, strict=True))])
+                      *(f"{key} := " + script_sum([threshold_text(v), *(
+                          f"{w!r} * {feature_keys[f]}" for f, w in dim_terms)])
+                        for key, v, dim_terms in zip(keys[1:], values, terms, strict=True))])
 
 
 def condition_code(node: Condition, keys: Seq[str]) -> str:
@@ -203,7 +212,7 @@ def condition_code(node: Condition, keys: Seq[str]) -> str:
     engine computes ``(w1 * x) + (w2 * vx)`` in double, the floating-point rule of
     :mod:`ibt.bt.linear`, so it decides exactly as ``ibt``)."""
     if node.form is not None:
-        for weight in (node.form.w1, node.form.w2):
+        for _, weight in node.form.terms:
             if abs(weight) < sys.float_info.min:
                 raise ValueError(f"weight {weight!r} of {node.form} is subnormal, which "
                                  "BehaviorTree.CPP's number parser rejects; use a larger one")
@@ -351,10 +360,43 @@ def _form_condition(match: re.Match[str], code: str, feature_of: dict[str, int])
         raise ValueError(f"ScriptCondition {code!r}: {err}") from None
 
 
+def sum_terms(text: str, code: str, feature_of: dict[str, int], node: str = "Script"
+              ) -> tuple[float | None, tuple[tuple[int, float], ...]]:
+    """``[BIAS +] W1 * KEY1 + W2 * KEY2 ...`` as to_btcpp_xml writes a sum: its bias (None if
+    it has none) and its terms."""
+    bias: float | None = None
+    terms = []
+    for k, part in enumerate(text.replace("(", "").replace(")", "").split(" + ")):
+        match = _TERM.match(part)
+        try:
+            if match is None and k == 0:
+                bias = float(part)
+                continue
+            if match is None:
+                raise ValueError
+            weight, key = float(match.group(1)), match.group(2)
+        except ValueError:
+            raise ValueError(f"unsupported {node} code {code!r}: {part!r:.60} is not "
+                             "'WEIGHT * KEY' as to_btcpp_xml writes") from None
+        if key not in feature_of:
+            raise ValueError(f"{node} code {code!r} reads the blackboard key {key!r}, which is "
+                             f"none of this task's features (keys: {', '.join(feature_of)})")
+        terms.append((feature_of[key], weight))
+    return bias, tuple(terms)
+
+
 def _script_condition(code: str, feature_of: dict[str, int]) -> Condition:
     form = _FORM_CODE.match(code) or _SCALED_FORM_CODE.match(code)
     if form:
         return _form_condition(form, code, feature_of)
+    oblique = None if _CODE.match(code) else _OBLIQUE_CODE.match(code)
+    if oblique:
+        _, terms = sum_terms(oblique.group(1), code, feature_of, SCRIPT_CONDITION)
+        try:
+            return Condition.relational(linear_form(terms), oblique.group(2),
+                                        float(oblique.group(3)))
+        except ValueError as err:
+            raise ValueError(f"ScriptCondition {code!r}: {err}") from None
     match = _CODE.match(code)
     if not match:
         raise ValueError(f"unsupported ScriptCondition code {code!r}; expected "
@@ -371,26 +413,30 @@ def _script_condition(code: str, feature_of: dict[str, int]) -> Condition:
     return Condition(feature_of[key], op, threshold)
 
 
-def _script_command(code: str, commands: tuple[list[str], Commands]) -> Node:
+def _script_command(code: str, commands: tuple[list[str], Commands, dict[str, int]]) -> Node:
     """A command's ``Script`` back to its action: the id and every value must match."""
-    keys, table = commands
+    keys, table, feature_of = commands
     parts = [p.split(":=") for p in code.split(";")]
     assigned = {p[0].strip(): p[1].strip() for p in parts if len(p) == 2}
     try:
         action = int(assigned[keys[0]])
-        values = tuple(float(assigned[k]) for k in keys[1:])
-    except (KeyError, ValueError):
+        sums = [sum_terms(assigned[k], code, feature_of) for k in keys[1:]]
+        values = tuple(float(bias) for bias, _ in sums)  # type: ignore[arg-type]
+    except (KeyError, ValueError, TypeError):
         raise ValueError(f"unsupported Script code {code!r}; expected "
                          f"'{keys[0]} := ID; {keys[1]} := VALUE; ...' as to_btcpp_xml writes"
                          ) from None
-    if not 0 <= action < len(table.values) or table.values[action] != values:
+    terms = tuple(t for _, t in sums)
+    wanted = ((table.terms[action] if table.terms is not None else ((),) * len(values))
+              if 0 <= action < len(table.values) else None)
+    if wanted is None or table.values[action] != values or wanted != terms:
         raise ValueError(f"Script {code!r} writes a command that is not command {action} of "
                          "the BT's command table")
     return Action(action)
 
 
 def _node(element: ET.Element, action_of: dict[str, int], feature_of: dict[str, int],
-          commands: tuple[list[str], Commands] | None = None) -> Node:
+          commands: tuple[list[str], Commands, dict[str, int]] | None = None) -> Node:
     tag = element.tag
     ident = element.get("ID", "") if tag in ("Action", "Condition") else tag
     known = ATTRIBUTES.get(ident, ACTION_ATTRIBUTES if ident in action_of else None)
@@ -457,7 +503,7 @@ def from_btcpp_xml(text: str, feature_names: Seq[str], action_names: Seq[str],
     action_of = {ident: i for i, ident in enumerate(action_ids(action_names))}
     feature_of = {key: i for i, key in enumerate(blackboard_keys(feature_names))}
     shell = BehaviorTree(Action(0), tuple(feature_names), tuple(action_names), (), commands)
-    scripts = (command_keys(shell), commands) if commands is not None else None
+    scripts = (command_keys(shell), commands, feature_of) if commands is not None else None
     bt = BehaviorTree(_node(trees[0][0], action_of, feature_of, scripts),
                       tuple(feature_names), tuple(action_names), tuple(value_labels), commands)
     bt.validate()

@@ -273,7 +273,7 @@ def xml_commands(xml: str, task: Task, source: str = "the XML") -> Commands:
     (``command := 2; main_engine := 0.8; ...``, as :func:`ibt.export.btcpp.command_code`
     writes them); ids must run ``0 .. k-1`` and one id always write the same values."""
     from ibt.bt.model import Action, BehaviorTree
-    from ibt.export.btcpp import command_keys
+    from ibt.export.btcpp import blackboard_keys, command_keys, sum_terms
 
     dims = tuple(task.action_names)
     units = tuple(task.action_units or ("",) * len(dims))
@@ -284,20 +284,26 @@ def xml_commands(xml: str, task: Task, source: str = "the XML") -> Commands:
         root = ET.fromstring(xml)
     except ET.ParseError as err:
         raise ValueError(f"{source}: not well-formed XML ({err})") from None
+    feature_of = {key: i for i, key in enumerate(blackboard_keys(task.feature_names))}
     table: dict[int, tuple[float, ...]] = {}
+    linear: dict[int, tuple[tuple[tuple[int, float], ...], ...]] = {}
     for element in root.iter("Script"):
         code = element.get("code", "")
         assigned = {p[0].strip(): p[1].strip() for p in
                     (part.split(":=") for part in code.split(";")) if len(p) == 2}
         try:
             ident = int(assigned[keys[0]])
-            values = tuple(float(assigned[k]) for k in keys[1:])
-        except (KeyError, ValueError):
+            sums = [sum_terms(assigned[k], code, feature_of) for k in keys[1:]]
+            values = tuple(float(bias) for bias, _ in sums)  # type: ignore[arg-type]
+            terms = tuple(t for _, t in sums)
+        except (KeyError, ValueError, TypeError):
             raise ValueError(f"{source}: Script {code!r} does not write {task.name}'s command "
                              f"({'; '.join(f'{k} := ...' for k in keys)})") from None
         if not all(np.isfinite(values)):
             raise ValueError(f"{source}: Script {code!r} writes a value that is not a finite "
                              "number")
+        if linear.setdefault(ident, terms) != terms:
+            raise ValueError(f"{source}: command {ident} writes two different values")
         if table.setdefault(ident, values) != values:
             raise ValueError(f"{source}: command {ident} writes two different values")
     if not table:
@@ -307,8 +313,10 @@ def xml_commands(xml: str, task: Task, source: str = "the XML") -> Commands:
     if sorted(table) != list(range(len(table))):
         raise ValueError(f"{source}: its Script nodes write command ids {sorted(table)}; "
                          f"expected 0 to {len(table) - 1}")
-    commands = Commands(dims, units, tuple(table[i] for i in range(len(table))))
-    task.check_action(commands.array())
+    commands = Commands(dims, units, tuple(table[i] for i in range(len(table))),
+                        tuple(linear[i] for i in range(len(table))))
+    if not commands.linear:
+        task.check_action(commands.array())
     return commands
 
 

@@ -183,7 +183,11 @@ def bt_actions(bt: BehaviorTree, features: np.ndarray) -> np.ndarray:
     """The command vectors a BT with commands sends on feature rows."""
     if bt.commands is None:
         raise ValueError("this BT has discrete actions, not commands")
-    return bt.commands.array()[bt.decide(np.asarray(features))]
+    x = np.asarray(features)
+    if not bt.commands.linear:
+        return bt.commands.array()[bt.decide(x)]
+    widened = x.astype(np.float32).astype(np.float64)
+    return bt.commands.evaluate(bt.decide(x), widened).astype(np.float32)
 
 
 class CommandBTPolicy:
@@ -198,7 +202,8 @@ class CommandBTPolicy:
                              f"{', '.join(bt.commands.dimensions)}, but {task.name} has "
                              f"{', '.join(task.feature_names)} and {', '.join(task.action_names)}"
                              "; pass the task the BT was made for")
-        task.check_action(bt.commands.array())
+        if not bt.commands.linear:  # a linear command may leave the Box: the env clips it
+            task.check_action(bt.commands.array())
         self.task, self.bt = task, bt
 
     def act(self, obs: np.ndarray) -> np.ndarray:

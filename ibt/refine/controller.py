@@ -1,0 +1,200 @@
+"""Refinement by return of controller trees: thresholds, biases and weights tuned jointly.
+
+A controller tree (:class:`ibt.distill.controller.ControllerArrays`) keeps its shape and which
+features each test and command reads; CMA-ES (:func:`ibt.refine.by_return.cma_search`) moves
+every threshold in units of its test's spread over the visited states, every command bias in
+:data:`BIAS_SCALE` of its dimension's Box span, and every weight so that its term moves by the
+same share of the span over the feature's spread. Generations are scored on fresh refinement
+episodes, the stages' results compared on held-out selection episodes, as every refinement of
+:mod:`ibt.refine.by_return` is. The result's constants are then rounded to the fewest
+significant digits that keep its held-out return (:func:`round_constants`), so the BT prints
+``main_engine := -1 + 10 * y - 10 * vy`` rather than seventeen digits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ibt.distill.controller import ControllerArrays, command_value, split_value, widen
+from ibt.refine.by_return import (
+    RefineEpisodes,
+    RefinementRecord,
+    close_record,
+    cma_search,
+    held_out_means,
+)
+from ibt.tasks.settings import RefineConfig
+from ibt.tasks.task import Task
+
+BIAS_SCALE = 0.25  #: a bias's CMA-ES unit, as a share of its dimension's Box span
+DIGITS = (1, 2, 3, 4, 6, 17)  #: significant digits tried when rounding, fewest first
+
+
+class ControllerPopulation:
+    """Parameter sets of one controller tree decided in one batch (the ``Batch`` protocol of
+    :mod:`ibt.refine.by_return`): row ``i`` is decided by member ``members[i]``."""
+
+    def __init__(self, tree: ControllerArrays, threshold: np.ndarray, bias: np.ndarray,
+                 weights: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
+        self.tree = tree
+        self.threshold = np.asarray(threshold, dtype=np.float64).reshape(-1, len(tree.left))
+        self.bias = np.asarray(bias, dtype=np.float64).reshape(len(self.threshold),
+                                                               *tree.bias.shape)
+        self.weights = np.asarray(weights, dtype=np.float64).reshape(len(self.threshold),
+                                                                     *tree.weights.shape)
+        self.low, self.high = low, high
+
+    @classmethod
+    def of(cls, trees: list[ControllerArrays], task: Task) -> ControllerPopulation:
+        """Trees of one shape as members."""
+        return cls(trees[0], np.stack([t.threshold for t in trees]),
+                   np.stack([t.bias for t in trees]), np.stack([t.weights for t in trees]),
+                   np.asarray(task.action_low), np.asarray(task.action_high))
+
+    def __len__(self) -> int:
+        return len(self.threshold)
+
+    def decide(self, features: np.ndarray, members: np.ndarray) -> np.ndarray:
+        x = widen(features)
+        t = self.tree
+        node = np.zeros(len(x), dtype=np.int64)
+        while True:
+            inner = t.left[node] != -1
+            if not inner.any():
+                break
+            rows = np.flatnonzero(inner)
+            at = node[rows]
+            goes_left = (split_value(t.split[at], x[rows])
+                         <= self.threshold[members[rows], at])
+            node[rows] = np.where(goes_left, t.left[at], t.right[at])
+        out = command_value(self.bias[members, node], self.weights[members, node], x)
+        return np.clip(out, self.low, self.high).astype(np.float32)
+
+
+@dataclass
+class ControllerRefinement(RefinementRecord[ControllerArrays]):
+    """A controller refinement's record: each stage's result and the chosen tree."""
+
+    def to_doc(self) -> dict[str, Any]:
+        return {"task": self.task, "seed": self.seed, "config": self.config,
+                "stages": self.stages, "candidates": [c.to_doc() for c in self.candidates],
+                "best_index": self.best_index, "selection_means": self.selection_means,
+                "episodes": self.episodes, "steps": self.steps,
+                "wall_seconds": self.wall_seconds, "cpu_seconds": self.cpu_seconds}
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> ControllerRefinement:
+        return cls(**{**doc, "candidates": [ControllerArrays.from_doc(c)
+                                            for c in doc["candidates"]]})
+
+
+def _spreads(tree: ControllerArrays, task: Task, episodes: RefineEpisodes
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Each feature's and each split's standard deviation over the states the tree visits (8
+    fresh episodes), floored at a thousandth of the feature's box."""
+    from ibt.evaluate.rollouts import rollout
+
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    states: list[np.ndarray] = []
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        x = task.features(obs)
+        states.append(x)
+        return np.clip(tree.decide(x), low, high).astype(np.float32)
+
+    rollout(task, act, episodes.fresh(8), n_envs=8)
+    x = widen(np.concatenate(states))
+    box = np.asarray(task.high, dtype=np.float64) - np.asarray(task.low, dtype=np.float64)
+    floor = np.where(np.isfinite(box) & (box > 0), 1e-3 * box, 1e-3)
+    feature = np.maximum(x.std(axis=0), floor)
+    split = np.array([max(float(np.std(x @ w)), 1e-3) for w in tree.split])
+    return feature, split
+
+
+def _cma_stage(tree: ControllerArrays, task: Task, config: RefineConfig,
+               episodes: RefineEpisodes, rng: np.random.Generator
+               ) -> tuple[ControllerArrays, dict[str, Any]]:
+    feature_spread, split_spread = _spreads(tree, task, episodes)
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    span = high - low
+    splits = np.flatnonzero(tree.left != -1)
+    leaves = tree.leaves
+    terms = np.argwhere(tree.weights != 0)  # (node, dim, feature) of every command term
+    scale = np.concatenate([
+        split_spread[splits],
+        np.tile(BIAS_SCALE * span, len(leaves)),
+        BIAS_SCALE * span[terms[:, 1]] / feature_spread[terms[:, 2]]])
+
+    def members(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        z = np.atleast_2d(z) * scale
+        m = len(z)
+        t = np.repeat(tree.threshold[None], m, axis=0)
+        t[:, splits] += z[:, :len(splits)]
+        b = np.repeat(tree.bias[None], m, axis=0)
+        k = len(splits) + len(leaves) * tree.n_dims
+        b[:, leaves] += z[:, len(splits):k].reshape(m, len(leaves), tree.n_dims)
+        w = np.repeat(tree.weights[None], m, axis=0)
+        w[:, terms[:, 0], terms[:, 1], terms[:, 2]] += z[:, k:]
+        return t, b, w
+
+    best, info = cma_search(len(scale), config, episodes, rng,
+                            lambda z: ControllerPopulation(tree, *members(z), low, high))
+    if best is None:
+        return tree, info
+    t, b, w = members(best)
+    return tree.with_parameters(t[0], b[0], w[0]), info
+
+
+def round_constants(tree: ControllerArrays, digits: int) -> ControllerArrays:
+    """Every threshold, bias and weight rounded to ``digits`` significant digits (a weight
+    that rounds to zero is dropped, so the rule reads one feature fewer)."""
+    def rounded(a: np.ndarray) -> np.ndarray:
+        out = np.array([float(f"{v:.{digits}g}") for v in a.ravel()]).reshape(a.shape)
+        return out + 0.0
+
+    return tree.with_parameters(rounded(tree.threshold), rounded(tree.bias),
+                                rounded(tree.weights), rounded(tree.split))
+
+
+def refine_controller(tree: ControllerArrays, task: Task, config: RefineConfig, seed: int = 0,
+                      *, tolerance: float = 0.0, progress: bool = True
+                      ) -> ControllerRefinement:
+    """Refine ``tree`` on ``task``'s return (CMA-ES stages of ``config``), then round its
+    constants to the fewest :data:`DIGITS` whose held-out mean is at most ``tolerance``
+    (task units) below the unrounded tree's. The record's candidates are the source, each
+    stage's result and the rounded winner; ``best_index`` the one kept."""
+    if not task.continuous:
+        raise ValueError(f"{task.name} has discrete actions; controller trees command a Box")
+    unknown = [s for s in config.stages if s != "cma"]
+    if unknown:
+        raise ValueError(f"a controller tree is refined by CMA-ES stages only, not {unknown}")
+    rng = np.random.default_rng(seed)
+    record = ControllerRefinement(task.name, seed, config.as_params(), candidates=[tree])
+    episodes = RefineEpisodes.opened(task, seed, config, "refine controller", progress)
+    current = tree
+    for name in config.stages:
+        current, info = _cma_stage(current, task, config, episodes, rng)
+        record.candidates.append(current)
+        record.stages.append({"stage": name, "episodes_used": episodes.used, **info})
+    episodes.bar.close()
+
+    def means(trees: list[ControllerArrays]) -> list[float]:
+        return held_out_means(episodes, [ControllerPopulation.of([t], task) for t in trees],
+                              config, seed)
+
+    scores = means(record.candidates)
+    best = max(range(len(scores)), key=lambda i: (scores[i], -i))
+    for digits in DIGITS:
+        candidate = round_constants(record.candidates[best], digits)
+        score = means([candidate])[0]
+        if score >= scores[best] - tolerance:
+            record.candidates.append(candidate)
+            record.stages.append({"stage": "round", "digits": digits})
+            scores.append(score)
+            break
+    record.best_index = len(record.candidates) - 1 if record.stages[-1].get(
+        "stage") == "round" else best
+    return close_record(record, scores, episodes)

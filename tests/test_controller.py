@@ -1,0 +1,256 @@
+"""Controller trees: linear commands and tests of up to four features, as BTs that steer.
+
+Laws: a BT of a controller tree sends exactly the tree's command (in ``ibt`` and in stock
+BehaviorTree.CPP); sums are added left to right in double everywhere; a document round-trips.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ibt.bt.linear import LinearForm, ObliqueForm, form_from_json, linear_form, script_sum
+from ibt.bt.model import Action, BehaviorTree, Commands, Condition, Selector, Sequence
+from ibt.distill.controller import ControllerArrays, fit_model_tree, sparse_fit, widen
+from ibt.synth.controller import check_states, controller_bt
+from ibt.tasks.catalogue import get_task
+
+
+def _controller(rng: np.random.Generator, n_features: int = 3, n_dims: int = 2,
+                oblique: bool = True) -> ControllerArrays:
+    """A depth-2 controller tree: root split, a split on the left, three leaves."""
+    n = 5
+    left, right = np.array([1, 3, -1, -1, -1]), np.array([2, 4, -1, -1, -1])
+    split = np.zeros((n, n_features))
+    split[0, 0] = 1.0
+    if oblique:
+        split[1, :3] = rng.normal(size=3).round(2) + 0.05
+    else:
+        split[1, 1] = 1.0
+    threshold = np.array([rng.normal(), rng.normal(), 0, 0, 0])
+    bias = np.zeros((n, n_dims))
+    weights = np.zeros((n, n_dims, n_features))
+    for leaf in (2, 3, 4):
+        bias[leaf] = rng.normal(size=n_dims)
+        for d in range(n_dims):
+            features = rng.choice(n_features, size=min(n_features, 2), replace=False)
+            weights[leaf, d, features] = rng.normal(size=len(features)) * 3
+    return ControllerArrays(left, right, split, threshold, bias, weights)
+
+
+# ------------------------------------------------------------------ forms and the sum rule
+def test_a_form_of_two_terms_is_the_relational_form_and_others_are_oblique():
+    assert linear_form([(0, 1.0), (2, -1.0)]) == LinearForm(0, 2, 1.0, -1.0)
+    oblique = linear_form([(0, 0.5), (2, 1.0), (3, -1.0)])
+    assert isinstance(oblique, ObliqueForm) and oblique.features == (0, 2, 3)
+    # Expect: JSON round trips, the reader's text, and refusals naming the problem
+    assert form_from_json(oblique.to_json()) == oblique
+    assert oblique.text(["x", "y", "vx", "angle"]) == "0.5 * x + vx - angle"
+    with pytest.raises(ValueError, match="each feature once"):
+        linear_form([(0, 1.0), (0, 2.0), (1, 1.0)])
+    with pytest.raises(ValueError, match="1 to 4 features"):
+        form_from_json({"features": [0, 1, 2, 3, 4], "weights": [1, 1, 1, 1, 1]})
+    with pytest.raises(ValueError, match="non-zero"):
+        linear_form([(0, 1.0), (1, 0.0), (2, 1.0)])
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3, allow_nan=False).filter(lambda w: abs(w) > 1e-3),
+                min_size=3, max_size=4),
+       st.lists(st.floats(-1e3, 1e3, allow_nan=False, width=32), min_size=4, max_size=4))
+def test_an_oblique_form_adds_its_terms_left_to_right_in_double(weights, row):
+    form = ObliqueForm(tuple(range(len(weights))), tuple(weights))
+    x = widen(np.array([row]))
+    total = weights[0] * x[0, 0]
+    for k in range(1, len(weights)):
+        total = total + weights[k] * x[0, k]
+    # Expect: exactly the left-to-right double sum, never a more accurate one
+    assert form.value(x)[0] == total
+
+
+def test_a_script_sum_of_three_or_more_parts_is_grouped_from_the_left():
+    # BehaviorTree.CPP groups a + b + c as a + (b + c): the parentheses keep our order
+    assert script_sum(["a"]) == "a"
+    assert script_sum(["a", "b"]) == "a + b"
+    assert script_sum(["a", "b", "c", "d"]) == "((a + b) + c) + d"
+
+
+# ------------------------------------------------------------------------ linear commands
+def _linear_bt() -> BehaviorTree:
+    steer = (((1, 10.0), (3, -10.0)), ((0, 0.5), (2, 1.0), (3, -1.0)))
+    commands = Commands(("main", "side"), ("", ""), ((-1.0, 0.0), (0.5, 0.0)),
+                        (steer, ((), ())))
+    root = Selector((Sequence((Condition.relational(linear_form([(0, 0.5), (2, 1.0),
+                                                                  (3, -1.0)]), ">", 0.05),
+                               Action(0))), Action(1)))
+    return BehaviorTree(root, ("x", "y", "vx", "vy"), ("steer", "idle"), commands=commands)
+
+
+def test_a_linear_command_evaluates_its_terms_and_round_trips_as_format_2():
+    bt = _linear_bt()
+    x = widen(np.array([[0.2, 0.7, 0.3, 0.1], [0.0, 0.0, 0.0, 1.0]]))
+    ids = bt.decide(x)
+    sent = bt.commands.evaluate(ids, x)
+    # Expect: row 0 passes the test (0.1 + 0.3 - 0.1 > 0.05) and sends -1 + 10 y - 10 vy
+    assert ids.tolist() == [0, 1]
+    assert sent[0, 0] == (-1.0 + 10.0 * x[0, 1]) + -10.0 * x[0, 3]
+    assert sent[0, 1] == ((0.0 + 0.5 * x[0, 0]) + 1.0 * x[0, 2]) + -1.0 * x[0, 3]
+    assert sent[1].tolist() == [0.5, 0.0]
+    doc = bt.to_dict()
+    assert doc["format"] == "ibt-behavior-tree/2"
+    assert BehaviorTree.from_json(bt.to_json()) == bt
+    assert bt.commands.text(0, bt.feature_names) == ["main := -1 + 10 * y - 10 * vy",
+                                                     "side := 0.5 * x + vx - vy"]
+
+
+def test_older_documents_stay_format_1_and_a_format_1_file_cannot_hold_linear_commands():
+    plain = BehaviorTree(Selector((Action(0),)), ("x",), ("a",),
+                         commands=Commands(("u",), ("",), ((0.5,),)))
+    assert plain.to_dict()["format"] == "ibt-behavior-tree/1"
+    assert "terms" not in plain.to_dict()["commands"]
+    doc = _linear_bt().to_dict()
+    doc["format"] = "ibt-behavior-tree/1"
+    doc["tick_rule"] = plain.to_dict()["tick_rule"]
+    with pytest.raises(ValueError, match="ibt-behavior-tree/2"):
+        BehaviorTree.from_dict(doc)
+
+
+@pytest.mark.parametrize("terms, problem", [
+    ([[[[9, 1.0]], []], [[], []]], "reads feature 9"),
+    ([[[[0, 1.0], [0, 2.0]], []], [[], []]], "each feature once"),
+    ([[[[0, "a"]], []], [[], []]], "must be a number"),
+    ([[[[0, 1.0]]], [[], []]], "one list of terms per dimension"),
+    ([[[[0]], []], [[], []]], "pairs"),
+])
+def test_a_bad_terms_table_is_refused_naming_the_problem(terms, problem):
+    doc = _linear_bt().to_dict()
+    doc["commands"]["terms"] = terms
+    doc["root"] = {"type": "selector", "children": [{"type": "action", "action": 1}]}
+    with pytest.raises(ValueError, match=problem):
+        BehaviorTree.from_dict(doc)
+
+
+# ---------------------------------------------------------------------------- the learner
+def test_sparse_fit_recovers_a_linear_law_on_at_most_max_terms_features():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(400, 6))
+    y = -1.0 + 10.0 * x[:, 1] - 10.0 * x[:, 3]
+    bias, weights = sparse_fit(x, y, max_terms=4)
+    # Expect: the two features of the law, their weights, nothing else
+    assert math.isclose(bias, -1.0, abs_tol=1e-9)
+    assert np.flatnonzero(weights).tolist() == [1, 3]
+    assert np.allclose(weights[[1, 3]], [10.0, -10.0])
+
+
+def test_a_model_tree_finds_the_switch_of_a_piecewise_linear_controller():
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-1, 1, size=(3000, 4)).astype(np.float32)
+    y = np.where(x[:, 0] <= 0.25, 1.0 + 2.0 * x[:, 1], -0.5 - 3.0 * x[:, 2])[:, None]
+    tree = fit_model_tree(x, y, max_leaves=2)
+    assert tree.n_leaves == 2 and tree.split[0].tolist() == [1.0, 0.0, 0.0, 0.0]
+    assert abs(tree.threshold[0] - 0.25) < 0.05
+    error = np.abs(tree.decide(x) - y)[:, 0]
+    assert np.mean(error < 1e-4) > 0.99 and error.mean() < 1e-2
+    assert tree.size()["command_terms"] == 2
+
+
+# -------------------------------------------------------------- the BT decides as the tree
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_a_controller_bt_sends_exactly_the_trees_command(seed, oblique):
+    rng = np.random.default_rng(seed)
+    tree = _controller(rng, oblique=oblique)
+    task = get_task("LunarLanderContinuous-v3")
+    tree = ControllerArrays(tree.left, tree.right,
+                            np.pad(tree.split, ((0, 0), (0, task.n_features - 3))),
+                            tree.threshold, tree.bias,
+                            np.pad(tree.weights, ((0, 0), (0, 0), (0, task.n_features - 3))))
+    states = check_states(tree, task, rng.normal(size=(200, task.n_features)), seed=seed,
+                          n_random=300)
+    built = controller_bt(tree, task, states)
+    x = widen(states)
+    # Expect: every state gets bit for bit the tree's command; one rule per leaf
+    assert np.array_equal(built.bt.commands.evaluate(built.bt.decide(x), x), tree.decide(x))
+    assert built.rules == tree.n_leaves and built.bt.node_count <= 4 * tree.n_leaves - 3
+    assert BehaviorTree.from_json(built.bt.to_json()) == built.bt
+
+
+def test_stock_behaviortree_cpp_computes_the_same_commands_bit_for_bit():
+    from ibt.export.btcpp import from_btcpp_xml, to_btcpp_xml
+    from ibt.export.engine import EngineTree
+
+    rng = np.random.default_rng(7)
+    task = get_task("Pendulum-v1")
+    tree = _controller(rng, n_features=3, n_dims=1)
+    states = check_states(tree, task, rng.normal(size=(300, 3)), n_random=500)
+    bt = controller_bt(tree, task, states).bt
+    xml = to_btcpp_xml(bt)
+    assert "ScriptCondition" in xml and "torque := " in xml
+    # Expect: the XML reads back as the same BT, and the engine writes the same doubles
+    assert from_btcpp_xml(xml, bt.feature_names, bt.action_names, commands=bt.commands) == bt
+    engine = EngineTree(xml, bt.feature_names, bt.action_names, commands=bt.commands)
+    x = widen(states)
+    ours = bt.commands.evaluate(bt.decide(x), x)
+    disagreements = 0
+    for row, want in zip(states, ours, strict=True):
+        engine.tick(row)
+        got = [engine.blackboard.get_double(k) for k in engine.command_keys[1:]]
+        disagreements += got != want.tolist()
+    assert disagreements == 0
+
+
+def test_a_bt_that_would_send_another_command_is_not_written():
+    rng = np.random.default_rng(3)
+    task = get_task("Pendulum-v1")
+    tree = _controller(rng, n_features=3, n_dims=1, oblique=False)
+    states = check_states(tree, task, rng.normal(size=(50, 3)))
+    built = controller_bt(tree, task, states)
+    broken = ControllerArrays(tree.left, tree.right, tree.split, tree.threshold,
+                              tree.bias + np.where(tree.left[:, None] == -1, 1e-9, 0.0),
+                              tree.weights)
+    with pytest.raises(ValueError, match="sends another command"):
+        from ibt.synth import controller as synth_controller
+
+        original = synth_controller.leaf_commands
+
+        def stale(_tree, task):  # the BT of the old tree checked against the new one
+            return original(tree, task)
+
+        synth_controller.leaf_commands = stale
+        try:
+            controller_bt(broken, task, states)
+        finally:
+            synth_controller.leaf_commands = original
+    assert built.disagreements == 0
+
+
+# ------------------------------------------------------------------ reference controllers
+def test_dsp_pendulum_formula_reads_as_published():
+    from ibt.runs.reference_controllers import DSP_PENDULUM, prefix_formula
+
+    fn, reads, constants = prefix_formula(DSP_PENDULUM[0])
+    rng = np.random.default_rng(0)
+    theta, thdot = rng.uniform(-1, 1, 50), rng.uniform(-8, 8, 50)
+    obs = np.column_stack([np.cos(theta), np.sin(theta), thdot])
+    expected = -2 * np.sin(theta) + (-8 * np.sin(theta) - 2 * thdot) / np.cos(theta)
+    assert np.allclose(fn(obs), expected) and (reads, constants) == (4, 3)
+    for bad, problem in (("add,x1", "ends early"), ("x1,x2", "after its end"),
+                         ("add,x1,nan", "constant")):
+        with pytest.raises(ValueError, match=problem):
+            prefix_formula(bad)
+
+
+def test_the_reference_controllers_act_on_observation_batches():
+    from ibt.runs.reference_controllers import references
+
+    for ref in references():
+        task = get_task(ref.task)
+        obs = np.random.default_rng(0).uniform(0.1, 0.6, size=(3, task.n_features))
+        actions = np.asarray(ref.act(obs))
+        assert len(actions) == 3
+        if task.continuous:
+            assert actions.shape == (3, task.n_actions) and np.isfinite(actions).all()
