@@ -254,3 +254,53 @@ def test_the_reference_controllers_act_on_observation_batches():
         assert len(actions) == 3
         if task.continuous:
             assert actions.shape == (3, task.n_actions) and np.isfinite(actions).all()
+
+
+# ------------------------------------------------------------------- oblique (discrete) trees
+def test_an_oblique_tree_finds_a_test_of_three_features_in_one_split():
+    from ibt.distill.oblique import fit_oblique_tree
+
+    rng = np.random.default_rng(2)
+    x = rng.uniform(-1, 1, size=(4000, 5)).astype(np.float32)
+    y = (0.5 * x[:, 0] + x[:, 2] - x[:, 3] > 0.1).astype(np.int64)
+    tree = fit_oblique_tree(x, y, n_classes=2, max_leaves=2)
+    # Expect: one oblique split on features 0, 2, 3 that classifies almost every state
+    assert tree.n_leaves == 2 and set(np.flatnonzero(tree.split[0])) <= {0, 2, 3}
+    assert np.mean(tree.decide(x) == y) > 0.97
+
+
+def test_an_oblique_bt_decides_exactly_as_its_tree_in_ibt_and_in_behaviortree_cpp():
+    from ibt.distill.oblique import ObliqueArrays
+    from ibt.export.btcpp import to_btcpp_xml
+    from ibt.export.engine import EngineTree
+
+    task = get_task("LunarLander-v3")
+    split = np.zeros((5, 8))
+    split[0, [0, 2, 4]] = (0.5, 1.0, -1.0)
+    split[1, 6] = 1.0
+    tree = ObliqueArrays(np.array([1, 3, -1, -1, -1]), np.array([2, 4, -1, -1, -1]), split,
+                         np.array([0.05, 0.5, 0, 0, 0]), np.array([-1, -1, 2, 0, 1]))
+    rng = np.random.default_rng(4)
+    states = check_states(tree, task, rng.normal(size=(300, 8)), n_random=300)
+    built = controller_bt(tree, task, states)
+    assert built.rules == 3 and built.bt.commands is None
+    engine = EngineTree(to_btcpp_xml(built.bt), task.feature_names, task.action_names)
+    # Expect: the engine's decisions are the tree's on every state
+    assert np.array_equal(engine.decide(states), tree.decide(states))
+
+
+def test_refinement_by_return_is_deterministic_and_keeps_the_shape():
+    from ibt.refine.controller import refine_controller
+    from ibt.tasks.settings import RefineConfig
+
+    task = get_task("Pendulum-v1")
+    rng = np.random.default_rng(5)
+    tree = _controller(rng, n_features=3, n_dims=1, oblique=False)
+    config = RefineConfig(stages=("cma",), episodes=24, cma_generations=2, cma_episodes=2,
+                          cma_popsize=4, sweep_episodes=2, selection_episodes=3, n_envs=8)
+    first = refine_controller(tree, task, config, seed=1, progress=False)
+    again = refine_controller(tree, task, config, seed=1, progress=False)
+    assert first.to_doc()["candidates"] == again.to_doc()["candidates"]
+    best = first.candidates[first.best_index]
+    assert np.array_equal(best.left, tree.left)
+    assert np.array_equal(best.weights != 0, tree.weights != 0) or first.stages[-1].get("digits")

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ibt.distill.controller import ControllerArrays, command_value, split_value, widen
+from ibt.distill.oblique import ObliqueArrays
 from ibt.refine.by_return import (
     RefineEpisodes,
     RefinementRecord,
@@ -30,29 +31,39 @@ from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
 
 BIAS_SCALE = 0.25  #: a bias's CMA-ES unit, as a share of its dimension's Box span
+SPLIT_WEIGHT_SCALE = 0.25  #: a test weight's unit: moves its sum by this share of its spread
+Tree = ControllerArrays | ObliqueArrays
 DIGITS = (1, 2, 3, 4, 6, 17)  #: significant digits tried when rounding, fewest first
 
 
 class ControllerPopulation:
-    """Parameter sets of one controller tree decided in one batch (the ``Batch`` protocol of
-    :mod:`ibt.refine.by_return`): row ``i`` is decided by member ``members[i]``."""
+    """Parameter sets of one controller or oblique tree decided in one batch (the ``Batch``
+    protocol of :mod:`ibt.refine.by_return`): row ``i`` is decided by member ``members[i]``.
+    An oblique tree (discrete actions) has no commands: ``bias`` and ``weights`` are None."""
 
-    def __init__(self, tree: ControllerArrays, threshold: np.ndarray, bias: np.ndarray,
-                 weights: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
+    def __init__(self, tree: Tree, threshold: np.ndarray, split: np.ndarray,
+                 bias: np.ndarray | None, weights: np.ndarray | None, low: np.ndarray | None,
+                 high: np.ndarray | None) -> None:
         self.tree = tree
-        self.threshold = np.asarray(threshold, dtype=np.float64).reshape(-1, len(tree.left))
-        self.bias = np.asarray(bias, dtype=np.float64).reshape(len(self.threshold),
-                                                               *tree.bias.shape)
-        self.weights = np.asarray(weights, dtype=np.float64).reshape(len(self.threshold),
-                                                                     *tree.weights.shape)
+        n = len(tree.left)
+        self.threshold = np.asarray(threshold, dtype=np.float64).reshape(-1, n)
+        m = len(self.threshold)
+        self.split = np.asarray(split, dtype=np.float64).reshape(m, n, -1)
+        self.bias = None if bias is None else np.asarray(bias, np.float64).reshape(m, n, -1)
+        self.weights = (None if weights is None else
+                        np.asarray(weights, np.float64).reshape(m, *tree.weights.shape))
         self.low, self.high = low, high
 
     @classmethod
-    def of(cls, trees: list[ControllerArrays], task: Task) -> ControllerPopulation:
+    def of(cls, trees: list[Tree], task: Task) -> ControllerPopulation:
         """Trees of one shape as members."""
-        return cls(trees[0], np.stack([t.threshold for t in trees]),
-                   np.stack([t.bias for t in trees]), np.stack([t.weights for t in trees]),
-                   np.asarray(task.action_low), np.asarray(task.action_high))
+        threshold = np.stack([t.threshold for t in trees])
+        split = np.stack([t.split for t in trees])
+        if isinstance(trees[0], ObliqueArrays):
+            return cls(trees[0], threshold, split, None, None, None, None)
+        return cls(trees[0], threshold, split, np.stack([t.bias for t in trees]),
+                   np.stack([t.weights for t in trees]), np.asarray(task.action_low),
+                   np.asarray(task.action_high))
 
     def __len__(self) -> int:
         return len(self.threshold)
@@ -67,15 +78,17 @@ class ControllerPopulation:
                 break
             rows = np.flatnonzero(inner)
             at = node[rows]
-            goes_left = (split_value(t.split[at], x[rows])
-                         <= self.threshold[members[rows], at])
+            who = members[rows]
+            goes_left = split_value(self.split[who, at], x[rows]) <= self.threshold[who, at]
             node[rows] = np.where(goes_left, t.left[at], t.right[at])
+        if self.bias is None or self.weights is None:
+            return t.action[node]  # type: ignore[union-attr]
         out = command_value(self.bias[members, node], self.weights[members, node], x)
         return np.clip(out, self.low, self.high).astype(np.float32)
 
 
 @dataclass
-class ControllerRefinement(RefinementRecord[ControllerArrays]):
+class ControllerRefinement(RefinementRecord[Any]):
     """A controller refinement's record: each stage's result and the chosen tree."""
 
     def to_doc(self) -> dict[str, Any]:
@@ -87,23 +100,27 @@ class ControllerRefinement(RefinementRecord[ControllerArrays]):
 
     @classmethod
     def from_doc(cls, doc: dict[str, Any]) -> ControllerRefinement:
-        return cls(**{**doc, "candidates": [ControllerArrays.from_doc(c)
-                                            for c in doc["candidates"]]})
+        return cls(**{**doc, "candidates": [tree_from_doc(c) for c in doc["candidates"]]})
 
 
-def _spreads(tree: ControllerArrays, task: Task, episodes: RefineEpisodes
-             ) -> tuple[np.ndarray, np.ndarray]:
+def tree_from_doc(doc: dict[str, Any]) -> Tree:
+    """A controller or oblique tree from its document (its ``learner`` names which)."""
+    return (ObliqueArrays.from_doc(doc) if doc.get("learner") == "oblique"
+            else ControllerArrays.from_doc(doc))
+
+
+def _spreads(tree: Tree, task: Task, episodes: RefineEpisodes) -> tuple[np.ndarray, np.ndarray]:
     """Each feature's and each split's standard deviation over the states the tree visits (8
     fresh episodes), floored at a thousandth of the feature's box."""
     from ibt.evaluate.rollouts import rollout
 
-    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    population = ControllerPopulation.of([tree], task)
     states: list[np.ndarray] = []
 
     def act(obs: np.ndarray) -> np.ndarray:
         x = task.features(obs)
         states.append(x)
-        return np.clip(tree.decide(x), low, high).astype(np.float32)
+        return population.decide(x, np.zeros(len(x), dtype=np.int64))
 
     rollout(task, act, episodes.fresh(8), n_envs=8)
     x = widen(np.concatenate(states))
@@ -114,60 +131,88 @@ def _spreads(tree: ControllerArrays, task: Task, episodes: RefineEpisodes
     return feature, split
 
 
-def _cma_stage(tree: ControllerArrays, task: Task, config: RefineConfig,
-               episodes: RefineEpisodes, rng: np.random.Generator
-               ) -> tuple[ControllerArrays, dict[str, Any]]:
+def _cma_stage(tree: Tree, task: Task, config: RefineConfig, episodes: RefineEpisodes,
+               rng: np.random.Generator) -> tuple[Tree, dict[str, Any]]:
+    """CMA-ES on every threshold, the weights of every test of two or more features and, for
+    a controller, every command's bias and weights (see the module docstring)."""
     feature_spread, split_spread = _spreads(tree, task, episodes)
-    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
-    span = high - low
     splits = np.flatnonzero(tree.left != -1)
-    leaves = tree.leaves
-    terms = np.argwhere(tree.weights != 0)  # (node, dim, feature) of every command term
-    scale = np.concatenate([
-        split_spread[splits],
-        np.tile(BIAS_SCALE * span, len(leaves)),
-        BIAS_SCALE * span[terms[:, 1]] / feature_spread[terms[:, 2]]])
+    oblique = np.argwhere((tree.split != 0) & ((tree.split != 0).sum(axis=1) > 1)[:, None])
+    parts = [split_spread[splits],
+             SPLIT_WEIGHT_SCALE * split_spread[oblique[:, 0]] / feature_spread[oblique[:, 1]]]
+    box = isinstance(tree, ControllerArrays)
+    if box:
+        low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+        span = high - low
+        leaves = tree.leaves
+        terms = np.argwhere(tree.weights != 0)  # (node, dim, feature) of every command term
+        parts += [np.tile(BIAS_SCALE * span, len(leaves)),
+                  BIAS_SCALE * span[terms[:, 1]] / feature_spread[terms[:, 2]]]
+    scale = np.concatenate(parts)
+    k1 = len(splits)
+    k2 = k1 + len(oblique)
 
-    def members(z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def members(z: np.ndarray) -> dict[str, np.ndarray]:
         z = np.atleast_2d(z) * scale
         m = len(z)
         t = np.repeat(tree.threshold[None], m, axis=0)
-        t[:, splits] += z[:, :len(splits)]
-        b = np.repeat(tree.bias[None], m, axis=0)
-        k = len(splits) + len(leaves) * tree.n_dims
-        b[:, leaves] += z[:, len(splits):k].reshape(m, len(leaves), tree.n_dims)
-        w = np.repeat(tree.weights[None], m, axis=0)
-        w[:, terms[:, 0], terms[:, 1], terms[:, 2]] += z[:, k:]
-        return t, b, w
+        t[:, splits] += z[:, :k1]
+        w = np.repeat(tree.split[None], m, axis=0)
+        w[:, oblique[:, 0], oblique[:, 1]] += z[:, k1:k2]
+        out = {"threshold": t, "split": w}
+        if box:
+            b = np.repeat(tree.bias[None], m, axis=0)
+            k3 = k2 + len(leaves) * tree.n_dims
+            b[:, leaves] += z[:, k2:k3].reshape(m, len(leaves), tree.n_dims)
+            c = np.repeat(tree.weights[None], m, axis=0)
+            c[:, terms[:, 0], terms[:, 1], terms[:, 2]] += z[:, k3:]
+            out.update(bias=b, weights=c)
+        return out
 
-    best, info = cma_search(len(scale), config, episodes, rng,
-                            lambda z: ControllerPopulation(tree, *members(z), low, high))
+    def population(z: np.ndarray) -> ControllerPopulation:
+        p = members(z)
+        if not box:
+            return ControllerPopulation(tree, p["threshold"], p["split"], None, None, None, None)
+        return ControllerPopulation(tree, p["threshold"], p["split"], p["bias"], p["weights"],
+                                    low, high)
+
+    best, info = cma_search(len(scale), config, episodes, rng, population)
     if best is None:
         return tree, info
-    t, b, w = members(best)
-    return tree.with_parameters(t[0], b[0], w[0]), info
+    p = {k: v[0] for k, v in members(best).items()}
+    return _with(tree, p), info
 
 
-def round_constants(tree: ControllerArrays, digits: int) -> ControllerArrays:
+def _with(tree: Tree, p: dict[str, np.ndarray]) -> Tree:
+    if isinstance(tree, ObliqueArrays):
+        return tree.with_parameters(p["threshold"], p["split"])
+    return tree.with_parameters(p["threshold"], p["bias"], p["weights"], p["split"])
+
+
+def round_constants(tree: Tree, digits: int) -> Tree:
     """Every threshold, bias and weight rounded to ``digits`` significant digits (a weight
     that rounds to zero is dropped, so the rule reads one feature fewer)."""
     def rounded(a: np.ndarray) -> np.ndarray:
         out = np.array([float(f"{v:.{digits}g}") for v in a.ravel()]).reshape(a.shape)
         return out + 0.0
 
+    if isinstance(tree, ObliqueArrays):
+        return tree.with_parameters(rounded(tree.threshold), rounded(tree.split))
     return tree.with_parameters(rounded(tree.threshold), rounded(tree.bias),
                                 rounded(tree.weights), rounded(tree.split))
 
 
-def refine_controller(tree: ControllerArrays, task: Task, config: RefineConfig, seed: int = 0,
+def refine_controller(tree: Tree, task: Task, config: RefineConfig, seed: int = 0,
                       *, tolerance: float = 0.0, progress: bool = True
                       ) -> ControllerRefinement:
     """Refine ``tree`` on ``task``'s return (CMA-ES stages of ``config``), then round its
     constants to the fewest :data:`DIGITS` whose held-out mean is at most ``tolerance``
     (task units) below the unrounded tree's. The record's candidates are the source, each
     stage's result and the rounded winner; ``best_index`` the one kept."""
-    if not task.continuous:
-        raise ValueError(f"{task.name} has discrete actions; controller trees command a Box")
+    if task.continuous != isinstance(tree, ControllerArrays):
+        raise ValueError(f"{task.name} has {'a Box' if task.continuous else 'discrete'} "
+                         "actions: refine a controller tree on a Box task, an oblique tree on "
+                         "a discrete one")
     unknown = [s for s in config.stages if s != "cma"]
     if unknown:
         raise ValueError(f"a controller tree is refined by CMA-ES stages only, not {unknown}")
@@ -181,7 +226,7 @@ def refine_controller(tree: ControllerArrays, task: Task, config: RefineConfig, 
         record.stages.append({"stage": name, "episodes_used": episodes.used, **info})
     episodes.bar.close()
 
-    def means(trees: list[ControllerArrays]) -> list[float]:
+    def means(trees: list[Tree]) -> list[float]:
         return held_out_means(episodes, [ControllerPopulation.of([t], task) for t in trees],
                               config, seed)
 

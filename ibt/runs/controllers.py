@@ -136,12 +136,11 @@ def final_returns(task: Task, what: dict[str, Any], act: Any, episodes: int, cfg
     return list(doc["returns"])
 
 
-def controller_row(task: Task, algo: str, leaves: int, seed: int, cfg: Config,
-                   episodes: int) -> tuple[dict[str, Any], Any]:
-    """One refined controller's row and its verified BT (:class:`ibt.synth.controller
-    .ControllerBT`), measured on ``episodes`` final episodes."""
-    from ibt.engine.stages import bt_digest
-    from ibt.synth.commands import CommandBTPolicy
+def verified(task: Task, algo: str, leaves: int, seed: int, cfg: Config
+             ) -> tuple[dict[str, Any], ControllerArrays, Any]:
+    """One run's refinement record, its chosen tree and that tree's verified BT
+    (:class:`ibt.synth.controller.ControllerBT`, checked on the states of 4 final episodes,
+    random states and both sides of every axis test)."""
     from ibt.synth.controller import check_states, controller_bt
 
     record = refined(task, algo, leaves, seed, cfg)
@@ -157,6 +156,17 @@ def controller_row(task: Task, algo: str, leaves: int, seed: int, cfg: Config,
     rollout(task, act, final_seeds(4), n_envs=4)  # states to check the BT on
     built = controller_bt(tree, task, check_states(tree, task, np.concatenate(visited),
                                                    seed=seed))
+    return record, tree, built
+
+
+def controller_row(task: Task, algo: str, leaves: int, seed: int, cfg: Config,
+                   episodes: int) -> tuple[dict[str, Any], Any]:
+    """One refined controller's row and its verified BT, measured on ``episodes`` final
+    episodes."""
+    from ibt.engine.stages import bt_digest
+    from ibt.synth.commands import CommandBTPolicy
+
+    record, tree, built = verified(task, algo, leaves, seed, cfg)
     policy = CommandBTPolicy(task, built.bt)
     returns = np.asarray(final_returns(task, {"bt": bt_digest(built.bt)}, policy.act,
                                        episodes, cfg))
@@ -199,3 +209,59 @@ def reference_rows(task: Task, episodes: int, cfg: Config) -> list[dict[str, Any
                      "std_return": float(returns.std()), "episodes": len(returns),
                      "share_at_200": float((returns >= 200).mean()), "source": ref.source})
     return rows
+
+
+def controllers_table(cfg: Config, experts: dict[str, str], episodes: int) -> Any:
+    """Every run of the study (each task's leaf limits and seeds, :func:`budget_of`) and the
+    task's reference controllers, on the same ``episodes`` final episodes: one row each."""
+    import pandas as pd
+
+    from ibt.tasks.catalogue import get_task
+
+    rows: list[dict[str, Any]] = []
+    for name, algo in experts.items():
+        task = get_task(name)
+        budget = budget_of(task, cfg)
+        for leaves in budget.leaves:
+            for seed in budget.seeds:
+                row, built = controller_row(task, algo, leaves, seed, cfg, episodes)
+                rows.append({**row, "rules_text": "\n".join(_rules(built.bt))})
+        rows.extend(reference_rows(task, episodes, cfg))
+    return pd.DataFrame(rows)
+
+
+def _rules(bt: Any) -> list[str]:
+    from ibt.synth.controller import rules_text
+
+    return rules_text(bt)
+
+
+def summary(table: Any) -> Any:
+    """Per task and leaf limit: the mean over seeds and the best seed (chosen on these same
+    episodes, so its number is flattered), beside each reference controller."""
+    import pandas as pd
+
+    ours = table[table.learner == LEARNER]
+    grouped = ours.groupby(["task", "leaves_limit"]).agg(
+        seeds=("seed", "count"), rules=("rules", "max"), bt_nodes=("bt_nodes", "max"),
+        mean_of_seeds=("mean_return", "mean"), lowest_seed=("mean_return", "min"),
+        best_seed=("mean_return", "max")).reset_index()
+    grouped.insert(2, "what", "controller BT (ours)")
+    refs = table[table.learner != LEARNER].rename(columns={"learner": "what"})
+    refs = refs.assign(mean_of_seeds=refs.mean_return, best_seed=refs.mean_return,
+                       lowest_seed=refs.mean_return, seeds=1)
+    columns = ["task", "what", "leaves_limit", "seeds", "rules", "bt_nodes", "mean_of_seeds",
+               "lowest_seed", "best_seed"]
+    return pd.concat([grouped[columns], refs[columns]], ignore_index=True)
+
+
+def best_runs(table: Any) -> Any:
+    """Per task, the run with the highest mean return (ties: fewer BT nodes)."""
+    ours = table[table.learner == LEARNER]
+    return (ours.sort_values(["task", "mean_return", "bt_nodes"], ascending=[True, False, True])
+            .groupby("task").head(1).reset_index(drop=True))
+
+
+def controller_bt(cfg: Config, task: Task, algo: str, leaves: int, seed: int) -> Any:
+    """The verified BT of one run (read from the cache)."""
+    return verified(task, algo, leaves, seed, cfg)[2].bt

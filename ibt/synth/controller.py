@@ -33,6 +33,7 @@ from ibt.bt.model import (
     iterate,
 )
 from ibt.distill.controller import ControllerArrays, widen
+from ibt.distill.oblique import ObliqueArrays
 from ibt.tasks.task import Task
 
 SYNTHESISER = "controller"  #: the method's name in tables and reports
@@ -52,7 +53,7 @@ class ControllerBT:
         return sum(1 for node in self.bt.nodes() if isinstance(node, Action))
 
 
-def split_condition(tree: ControllerArrays, node: int, op: str) -> Condition:
+def split_condition(tree: ControllerArrays | ObliqueArrays, node: int, op: str) -> Condition:
     """The test of split ``node`` (``<=`` sends a state left)."""
     terms = [(int(f), float(tree.split[node, f])) for f in np.flatnonzero(tree.split[node])]
     threshold = float(tree.threshold[node])
@@ -73,7 +74,8 @@ def _sequence(parts: list[Node]) -> list[Node]:
     return out
 
 
-def _alternatives(tree: ControllerArrays, node: int, leaf_action: dict[int, int]) -> list[Node]:
+def _alternatives(tree: ControllerArrays | ObliqueArrays, node: int,
+                  leaf_action: dict[int, int]) -> list[Node]:
     """The children of a Fallback that decides as the subtree at ``node``."""
     if tree.left[node] == -1:
         return [Action(leaf_action[node])]
@@ -108,18 +110,36 @@ def leaf_commands(tree: ControllerArrays, task: Task) -> tuple[list[int], Comman
     return order, Commands(tuple(task.action_names), tuple(units), values, terms)
 
 
-def controller_bt(tree: ControllerArrays, task: Task, states: np.ndarray) -> ControllerBT:
+def rule_names(commands: Commands, task: Task) -> tuple[str, ...]:
+    """Each rule named by what it sends (``main_engine := -1 + 10 * y - 10 * vy, side_engine :=
+    0``), numbered where two read alike at four digits."""
+    texts = [", ".join(commands.text(k, task.feature_names)) for k in range(len(commands.values))]
+    return tuple(text if texts.count(text) == 1 else f"{text} (rule {k + 1})"
+                 for k, text in enumerate(texts))
+
+
+def controller_bt(tree: ControllerArrays | ObliqueArrays, task: Task, states: np.ndarray
+                  ) -> ControllerBT:
     """The BT of ``tree`` on ``task``, checked on feature rows ``states``: ``ValueError`` if it
-    sends another command than the tree on any of them (see the module docstring)."""
-    order, commands = leaf_commands(tree, task)
-    leaf_action = {leaf: k for k, leaf in enumerate(order)}
-    names = tuple(f"rule {k + 1}" for k in range(len(order)))
-    root = Selector(tuple(_alternatives(tree, 0, leaf_action)))
-    bt = BehaviorTree(root, tuple(task.feature_names), names, commands=commands)
-    bt.validate()
+    sends another command (or action) than the tree on any of them (see the module
+    docstring). An oblique tree's leaves are the task's actions."""
     x = widen(states)
-    ours = commands.evaluate(bt.decide(x), x)
-    theirs = tree.decide(x)
+    if isinstance(tree, ObliqueArrays):
+        leaf_action = {int(leaf): int(tree.action[leaf]) for leaf in tree.leaves}
+        root = Selector(tuple(_alternatives(tree, 0, leaf_action)))
+        bt = BehaviorTree(root, tuple(task.feature_names), tuple(task.action_names),
+                          task.value_labels)
+        bt.validate()
+        ours, theirs = bt.decide(x)[:, None], tree.decide(x)[:, None]
+    else:
+        order, commands = leaf_commands(tree, task)
+        leaf_action = {leaf: k for k, leaf in enumerate(order)}
+        root = Selector(tuple(_alternatives(tree, 0, leaf_action)))
+        bt = BehaviorTree(root, tuple(task.feature_names), rule_names(commands, task),
+                          commands=commands)
+        bt.validate()
+        ours = commands.evaluate(bt.decide(x), x)
+        theirs = tree.decide(x)
     same = (ours == theirs) | (np.isnan(ours) & np.isnan(theirs))
     disagreements = int((~same.all(axis=1)).sum())
     if disagreements:
@@ -128,8 +148,8 @@ def controller_bt(tree: ControllerArrays, task: Task, states: np.ndarray) -> Con
     return ControllerBT(bt, len(x), disagreements)
 
 
-def check_states(tree: ControllerArrays, task: Task, visited: np.ndarray, *, seed: int = 0,
-                 n_random: int = 2000) -> np.ndarray:
+def check_states(tree: ControllerArrays | ObliqueArrays, task: Task, visited: np.ndarray, *,
+                 seed: int = 0, n_random: int = 2000) -> np.ndarray:
     """States to check a controller BT on: ``visited``, random states in the task's box, and
     each axis test's threshold and the float32 values on both sides of it."""
     rng = np.random.default_rng(seed)
@@ -151,3 +171,34 @@ def check_states(tree: ControllerArrays, task: Task, visited: np.ndarray, *, see
             edges.append(edge)
     return np.concatenate([np.asarray(visited, dtype=np.float32),
                            random.astype(np.float32), *edges]).astype(np.float32)
+
+
+def rules_text(bt: BehaviorTree) -> list[str]:
+    """A controller BT as if/elif/else lines, one per rule (nested where the BT nests)::
+
+        if angular_velocity <= -2.7: torque := -2.96 + 6.66 * cos_theta ...
+        elif cos_theta <= -0.0607: torque := -1.63 - 1.03 * cos_theta ...
+        else: torque := -0.712 - 13.6 * sin_theta - 2.24 * angular_velocity
+    """
+    def block(children: tuple[Node, ...], indent: str) -> list[str]:
+        lines: list[str] = []
+        for k, child in enumerate(children):
+            if isinstance(child, Action):
+                keyword = "else" if k else "always"
+                lines.append(f"{indent}{keyword}: {bt.label(child)}")
+                continue
+            parts = child.children if isinstance(child, Sequence) else (child,)
+            tests = [bt.label(p) for p in parts if isinstance(p, Condition)]
+            body = [p for p in parts if not isinstance(p, Condition)]
+            head = f"{indent}{'elif' if k else 'if'} {' and '.join(tests) or 'true'}:"
+            if len(body) == 1 and isinstance(body[0], Action):
+                lines.append(f"{head} {bt.label(body[0])}")
+            else:
+                lines.append(head)
+                for inner in body:
+                    inner_children = inner.children if isinstance(inner, Fallback) else (inner,)
+                    lines.extend(block(tuple(inner_children), indent + "    "))
+        return lines
+
+    root = bt.root
+    return block(root.children if isinstance(root, Fallback) else (root,), "")

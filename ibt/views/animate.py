@@ -106,8 +106,9 @@ def episode(task: Task, bt: BehaviorTree, seed: int, max_steps: int, render: boo
                 action, trace = tick(bt, features)
                 frame = np.asarray(env.render()) if render else np.zeros((0, 0, 3), np.uint8)
                 yield Step(t, frame, features, action, tuple(trace), total)
-                sent = (np.asarray(bt.commands.values[action], dtype=np.float32)
-                        if bt.commands is not None else action)
+                sent = (bt.commands.evaluate(np.array([action]), np.asarray(
+                    features, dtype=np.float32).astype(np.float64)[None])[0].astype(np.float32)
+                    if bt.commands is not None else action)
                 obs, reward, terminated, truncated, _ = env.step(sent)
                 total += float(reward)
                 if terminated or truncated:

@@ -1,0 +1,279 @@
+"""Oblique trees for discrete actions: tests ``w1 * x[f1] + ... + wk * x[fk] <= t`` (k <= 4).
+
+The discrete twin of the controller trees (:mod:`ibt.distill.controller`): the same splits and
+the same floating-point rule, leaves that name an action. Gymnasium's hand-written LunarLander
+controller decides by such tests (``hover_todo > |angle_todo|`` compares sums of three and four
+features); an axis-aligned tree needs many leaves to approximate one of them.
+
+The learner (:class:`ObliqueLearner`) plugs into the interactive loop of
+:mod:`ibt.distill.loop` (labels, Q-gap weights and resampling as every discrete learner). Each
+leaf is split best-first where the weighted Gini impurity falls most, among the axis-aligned
+splits and, per action, a one-against-the-rest logistic regression on at most ``max_terms``
+features (the strongest of a first fit on every feature, refitted, weights scaled so the
+largest is 1), whose projection is cut at its best threshold. Refinement by return then tunes
+every threshold and weight (:mod:`ibt.refine.controller`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ibt.bt.linear import MAX_TERMS
+from ibt.distill.controller import split_value, widen
+from ibt.distill.loop import METHODS, Distillation, check_loop_settings, interactive_loop, mix
+from ibt.experts.expert import Expert
+from ibt.tasks.task import Task
+
+LEARNER = "oblique"
+MIN_SHARE = 0.02  #: an action with a smaller share of a leaf's labels gets no oblique proposal
+RELEVANT = 0.05  #: features weighing less than this share of the largest are left out
+
+
+@dataclass(frozen=True)
+class ObliqueArrays:
+    """An oblique tree as arrays over ``n`` nodes (node 0 the root; ``left == -1``: a leaf):
+    ``split`` ``(n, F)`` each split's weights, ``threshold`` ``(n,)``, ``action`` ``(n,)`` each
+    leaf's action (-1 at splits)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    split: np.ndarray
+    threshold: np.ndarray
+    action: np.ndarray
+
+    @property
+    def n_leaves(self) -> int:
+        return int((self.left == -1).sum())
+
+    @property
+    def leaves(self) -> np.ndarray:
+        return np.flatnonzero(self.left == -1)
+
+    @property
+    def node_count(self) -> int:
+        return len(self.left)
+
+    @property
+    def tree_(self) -> ObliqueArrays:
+        """Itself: the interactive loop reads a tree's size by scikit-learn's names."""
+        return self
+
+    def get_n_leaves(self) -> int:
+        return self.n_leaves
+
+    def leaf_of(self, x: np.ndarray) -> np.ndarray:
+        node = np.zeros(len(x), dtype=np.int64)
+        while True:
+            inner = self.left[node] != -1
+            if not inner.any():
+                return node
+            rows = np.flatnonzero(inner)
+            at = node[rows]
+            goes_left = split_value(self.split[at], x[rows]) <= self.threshold[at]
+            node[rows] = np.where(goes_left, self.left[at], self.right[at])
+
+    def decide(self, features: np.ndarray) -> np.ndarray:
+        return self.action[self.leaf_of(widen(features))]
+
+    def with_parameters(self, threshold: np.ndarray, split: np.ndarray) -> ObliqueArrays:
+        return ObliqueArrays(self.left, self.right, np.asarray(split, np.float64),
+                             np.asarray(threshold, np.float64), self.action)
+
+    def to_doc(self) -> dict[str, Any]:
+        return {"learner": LEARNER, "left": self.left.tolist(), "right": self.right.tolist(),
+                "split": self.split.tolist(), "threshold": self.threshold.tolist(),
+                "action": self.action.tolist()}
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> ObliqueArrays:
+        n = len(doc["left"])
+        return cls(np.asarray(doc["left"], np.int64), np.asarray(doc["right"], np.int64),
+                   np.asarray(doc["split"], np.float64).reshape(n, -1),
+                   np.asarray(doc["threshold"], np.float64), np.asarray(doc["action"], np.int64))
+
+    def digest(self) -> str:
+        import hashlib
+        import json
+
+        return hashlib.sha256(json.dumps(self.to_doc(), sort_keys=True).encode()
+                              ).hexdigest()[:16]
+
+    def size(self) -> dict[str, int]:
+        inner = self.left != -1
+        return {"rules": self.n_leaves, "tests": int(inner.sum()),
+                "test_terms": int((self.split[inner] != 0).sum()), "command_terms": 0}
+
+
+def _gini_cut(z: np.ndarray, y: np.ndarray, n_classes: int, min_leaf: int
+              ) -> tuple[float, float] | None:
+    """``(impurity decrease, threshold)`` of the best cut of values ``z`` for labels ``y``
+    (counts weighted equally: the loop has resampled by weight already)."""
+    n = len(z)
+    if n < 2 * min_leaf:
+        return None
+    order = np.argsort(z, kind="stable")
+    zs, ys = z[order], y[order]
+    onehot = np.zeros((n, n_classes))
+    onehot[np.arange(n), ys] = 1.0
+    left = np.cumsum(onehot, axis=0)[:-1]
+    right = left[-1] + onehot[-1] - left
+    k = np.arange(1, n)
+    gini_left = k - (left ** 2).sum(axis=1) / k
+    gini_right = (n - k) - (right ** 2).sum(axis=1) / (n - k)
+    total = n - (onehot.sum(axis=0) ** 2).sum() / n
+    ok = (zs[:-1] < zs[1:]) & (k >= min_leaf) & (n - k >= min_leaf)
+    if not ok.any():
+        return None
+    gain = np.where(ok, total - gini_left - gini_right, -np.inf)
+    cut = int(np.argmax(gain))
+    threshold = float((zs[cut] + zs[cut + 1]) / 2)
+    if not zs[cut] <= threshold < zs[cut + 1]:
+        threshold = float(zs[cut])
+    return float(gain[cut]), threshold
+
+
+def _oblique_directions(x: np.ndarray, y: np.ndarray, n_classes: int, max_terms: int
+                        ) -> list[np.ndarray]:
+    """Per frequent action, a one-against-the-rest direction on at most ``max_terms``
+    features (the largest weight 1, three significant digits)."""
+    from sklearn.linear_model import LogisticRegression
+
+    scale = x.std(axis=0)
+    scale[scale == 0] = 1.0
+    xs = (x - x.mean(axis=0)) / scale
+    out = []
+    shares = np.bincount(y, minlength=n_classes) / len(y)
+    for action in np.flatnonzero((shares >= MIN_SHARE) & (shares <= 1 - MIN_SHARE)):
+        target = (y == action).astype(int)
+        first = LogisticRegression(C=1.0, max_iter=200).fit(xs, target)
+        strength = np.abs(first.coef_[0])  # on standardised features: comparable
+        chosen = [f for f in np.argsort(-strength)[:max_terms]
+                  if strength[f] >= RELEVANT * strength.max()]
+        model = LogisticRegression(C=1.0, max_iter=200).fit(xs[:, chosen], target)
+        weights = np.zeros(x.shape[1])
+        weights[chosen] = model.coef_[0] / scale[chosen]  # in the features' own units
+        if not np.any(weights):
+            continue
+        weights /= np.abs(weights).max()
+        out.append(np.array([float(f"{w:.3g}") for w in weights]))
+    return out
+
+
+def fit_oblique_tree(x: np.ndarray, y: np.ndarray, n_classes: int, max_leaves: int, *,
+                     max_terms: int = MAX_TERMS, min_leaf: int | None = None) -> ObliqueArrays:
+    """An oblique tree of at most ``max_leaves`` leaves (see the module docstring)."""
+    x, y = widen(x), np.asarray(y, dtype=np.int64)
+    min_leaf = min_leaf or max(10, len(x) // (20 * max_leaves))
+    nodes: list[dict[str, Any]] = [{"rows": np.arange(len(x))}]
+    frontier = [0]
+    proposals: dict[int, tuple[float, np.ndarray, float] | None] = {}
+    while len(frontier) < max_leaves:
+        for node in frontier:
+            if node in proposals:
+                continue
+            rows = nodes[node]["rows"]
+            best: tuple[float, np.ndarray, float] | None = None
+            directions = [np.eye(x.shape[1])[f] for f in range(x.shape[1])]
+            if len(np.unique(y[rows])) > 1 and max_terms > 1:
+                directions += _oblique_directions(x[rows], y[rows], n_classes, max_terms)
+            for w in directions:
+                found = _gini_cut(split_value(np.broadcast_to(w, (len(rows), len(w))),
+                                              x[rows]), y[rows], n_classes, min_leaf)
+                if found is not None and (best is None or found[0] > best[0] + 1e-9):
+                    best = (found[0], w, found[1])
+            proposals[node] = best if best is not None and best[0] > 0 else None
+        ready = [(proposals[n][0], n) for n in frontier if proposals[n] is not None]
+        if not ready:
+            break
+        _, node = max(ready, key=lambda item: (item[0], -item[1]))
+        _, w, threshold = proposals[node]  # type: ignore[misc]
+        rows = nodes[node]["rows"]
+        goes_left = split_value(np.broadcast_to(w, (len(rows), len(w))), x[rows]) <= threshold
+        nodes[node].update(split=w, threshold=threshold, left=len(nodes), right=len(nodes) + 1)
+        nodes.append({"rows": rows[goes_left]})
+        nodes.append({"rows": rows[~goes_left]})
+        frontier.remove(node)
+        frontier += [len(nodes) - 2, len(nodes) - 1]
+    n = len(nodes)
+    tree = ObliqueArrays(np.full(n, -1, np.int64), np.full(n, -1, np.int64),
+                         np.zeros((n, x.shape[1])), np.zeros(n), np.full(n, -1, np.int64))
+    for k, node in enumerate(nodes):
+        if "split" in node:
+            tree.left[k], tree.right[k] = node["left"], node["right"]
+            tree.split[k] = node["split"]
+            tree.threshold[k] = node["threshold"]
+        else:
+            counts = np.bincount(y[node["rows"]], minlength=n_classes)
+            tree.action[k] = int(np.argmax(counts))
+    return tree
+
+
+@dataclass(frozen=True)
+class ObliqueConfig:
+    """Everything that determines an oblique distillation (with the agent and seed)."""
+
+    method: str = "dagger"
+    n_iterations: int = 10
+    labels_per_iteration: int = 4000
+    selection_episodes: int = 20
+    max_leaves: int = 4
+    max_terms: int = MAX_TERMS
+    collect_envs: int = 2
+    eval_envs: int = 20
+
+    def __post_init__(self) -> None:
+        check_loop_settings(self.method, self.n_iterations, self.labels_per_iteration)
+        if self.max_leaves < 1 or not 1 <= self.max_terms <= MAX_TERMS:
+            raise ValueError(f"max_leaves >= 1 and 1 <= max_terms <= {MAX_TERMS}, got "
+                             f"{self.max_leaves} and {self.max_terms}")
+
+    @property
+    def beta(self) -> Any:
+        return METHODS[self.method].schedule
+
+    @property
+    def weighted(self) -> bool:
+        return METHODS[self.method].weighted
+
+    def as_params(self) -> dict[str, Any]:
+        return {"learner": LEARNER, **asdict(self)}
+
+
+@dataclass(frozen=True)
+class ObliqueLearner:
+    """The interactive loop's learner for oblique trees on a discrete task."""
+
+    config: ObliqueConfig
+    n_actions: int
+
+    def label(self, expert: Expert, obs: np.ndarray, weighted: bool
+              ) -> tuple[np.ndarray, np.ndarray]:
+        return expert.label(obs)
+
+    def fit(self, x: np.ndarray, y: np.ndarray) -> ObliqueArrays:
+        return fit_oblique_tree(x, y, self.n_actions, self.config.max_leaves,
+                                max_terms=self.config.max_terms)
+
+    def signature(self, tree: ObliqueArrays) -> bytes:
+        return tree.digest().encode()
+
+    def predictor(self, tree: ObliqueArrays) -> Callable[[np.ndarray], np.ndarray]:
+        return tree.decide
+
+    def mix(self, expert_actions: np.ndarray, tree_actions: np.ndarray, beta: float,
+            rng: np.random.Generator) -> np.ndarray:
+        return mix(expert_actions, tree_actions, beta, rng)
+
+
+def distill_oblique(task: Task, expert: Expert, config: ObliqueConfig, seed: int = 0, *,
+                    progress: bool = True) -> Distillation:
+    """The interactive loop with an :class:`ObliqueLearner`; ``best_tree`` is an
+    :class:`ObliqueArrays`."""
+    if task.continuous:
+        raise ValueError(f"{task.name} has a Box action space; use the controller learner")
+    return interactive_loop(task, expert, config, seed, ObliqueLearner(config, task.n_actions),
+                            progress=progress)
