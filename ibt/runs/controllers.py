@@ -22,19 +22,22 @@ import numpy as np
 
 from ibt.cache.store import load_or_compute
 from ibt.distill.controller import ControllerArrays, ControllerConfig
+from ibt.distill.oblique import ObliqueArrays, ObliqueConfig
 from ibt.evaluate.rollouts import final_seeds, rollout
 from ibt.profiles import Config
 from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
 
-LEARNER = "controller"
+LEARNER = "controller"  #: linear commands (Box tasks)
+OBLIQUE = "oblique"  #: tests of up to four features (discrete tasks)
+OURS = (LEARNER, OBLIQUE)
 
 
 @dataclass(frozen=True)
 class ControllerBudget:
     """One task's controller settings: the loop's, refinement's and the study's grid."""
 
-    distil: ControllerConfig
+    distil: ControllerConfig | ObliqueConfig
     refine: RefineConfig
     leaves: tuple[int, ...]
     seeds: tuple[int, ...] = (0, 1, 2)
@@ -54,6 +57,10 @@ BUDGETS: dict[str, ControllerBudget] = {
         ControllerConfig(max_leaves=4, n_iterations=8, labels_per_iteration=3000),
         RefineConfig(stages=("cma", "cma"), episodes=12_000, cma_generations=40,
                      cma_episodes=16, selection_episodes=100), leaves=(2, 3, 4), tolerance=2.0),
+    "LunarLander-v3": ControllerBudget(
+        ObliqueConfig(max_leaves=4, n_iterations=10, labels_per_iteration=4000),
+        RefineConfig(stages=("cma", "cma"), episodes=12_000, cma_generations=60,
+                     cma_episodes=8, selection_episodes=100), leaves=(3, 4), tolerance=2.0),
     "LunarLanderContinuous-v3": ControllerBudget(
         ControllerConfig(max_leaves=8, n_iterations=10, labels_per_iteration=4000),
         RefineConfig(stages=("cma", "cma"), episodes=12_000, cma_generations=60,
@@ -84,9 +91,13 @@ def _agent(task: Task, algo: str, cfg: Config) -> Any:
     return committed_agent(task, algo, cfg.experts_dir)
 
 
-def distilled(task: Task, algo: str, leaves: int, seed: int, cfg: Config) -> ControllerArrays:
-    """The controller tree distilled from the committed agent (cached)."""
+def distilled(task: Task, algo: str, leaves: int, seed: int, cfg: Config
+              ) -> ControllerArrays | ObliqueArrays:
+    """The controller tree (``Box`` task) or oblique tree (discrete task) distilled from the
+    committed agent (cached)."""
     from ibt.distill.controller import distill_controller
+    from ibt.distill.oblique import distill_oblique
+    from ibt.refine.controller import tree_from_doc
 
     agent = _agent(task, algo, cfg)
     config = replace(budget_of(task, cfg).distil, max_leaves=leaves)
@@ -94,13 +105,14 @@ def distilled(task: Task, algo: str, leaves: int, seed: int, cfg: Config) -> Con
               "config": config.as_params()}
 
     def compute() -> dict[str, Any]:
-        record = distill_controller(task, agent.load(), config, seed, progress=cfg.progress)
+        learn = distill_controller if task.continuous else distill_oblique
+        record = learn(task, agent.load(), config, seed, progress=cfg.progress)  # type: ignore[arg-type]
         return {"tree": record.best_tree.to_doc(), "iterations": record.iterations,
                 "wall_seconds": record.wall_seconds}
 
     doc = load_or_compute("controller-distil", params, compute, cache_dir=cfg.cache_dir,
                           refresh=cfg.refresh)
-    return ControllerArrays.from_doc(doc["tree"])
+    return tree_from_doc(doc["tree"])
 
 
 def refined(task: Task, algo: str, leaves: int, seed: int, cfg: Config) -> dict[str, Any]:
@@ -137,21 +149,22 @@ def final_returns(task: Task, what: dict[str, Any], act: Any, episodes: int, cfg
 
 
 def verified(task: Task, algo: str, leaves: int, seed: int, cfg: Config
-             ) -> tuple[dict[str, Any], ControllerArrays, Any]:
+             ) -> tuple[dict[str, Any], ControllerArrays | ObliqueArrays, Any]:
     """One run's refinement record, its chosen tree and that tree's verified BT
     (:class:`ibt.synth.controller.ControllerBT`, checked on the states of 4 final episodes,
     random states and both sides of every axis test)."""
+    from ibt.refine.controller import ControllerPopulation, tree_from_doc
     from ibt.synth.controller import check_states, controller_bt
 
     record = refined(task, algo, leaves, seed, cfg)
-    tree = ControllerArrays.from_doc(record["candidates"][record["best_index"]])
-    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    tree = tree_from_doc(record["candidates"][record["best_index"]])
+    population = ControllerPopulation.of([tree], task)
     visited: list[np.ndarray] = []
 
     def act(obs: np.ndarray) -> np.ndarray:
         x = task.features(obs)
         visited.append(x)
-        return np.clip(tree.decide(x), low, high).astype(np.float32)
+        return population.decide(x, np.zeros(len(x), dtype=np.int64))
 
     rollout(task, act, final_seeds(4), n_envs=4)  # states to check the BT on
     built = controller_bt(tree, task, check_states(tree, task, np.concatenate(visited),
@@ -164,14 +177,16 @@ def controller_row(task: Task, algo: str, leaves: int, seed: int, cfg: Config,
     """One refined controller's row and its verified BT, measured on ``episodes`` final
     episodes."""
     from ibt.engine.stages import bt_digest
+    from ibt.evaluate.policies import BTPolicy
     from ibt.synth.commands import CommandBTPolicy
 
     record, tree, built = verified(task, algo, leaves, seed, cfg)
-    policy = CommandBTPolicy(task, built.bt)
-    returns = np.asarray(final_returns(task, {"bt": bt_digest(built.bt)}, policy.act,
-                                       episodes, cfg))
+    act = (CommandBTPolicy(task, built.bt).act if task.continuous
+           else BTPolicy(task, built.bt).act)
+    returns = np.asarray(final_returns(task, {"bt": bt_digest(built.bt)}, act, episodes, cfg))
     size = tree.size()
-    row = {"task": task.name, "agent": algo, "learner": LEARNER, "leaves_limit": leaves,
+    learner = LEARNER if task.continuous else OBLIQUE
+    row = {"task": task.name, "agent": algo, "learner": learner, "leaves_limit": leaves,
            "seed": seed, "rules": built.rules, "bt_nodes": built.bt.node_count,
            "tests": size["tests"], "test_terms": size["test_terms"],
            "command_terms": size["command_terms"],
@@ -187,10 +202,11 @@ def controller_row(task: Task, algo: str, leaves: int, seed: int, cfg: Config,
     return row, built
 
 
-def _max_features(tree: ControllerArrays) -> int:
+def _max_features(tree: ControllerArrays | ObliqueArrays) -> int:
     """The most features any one test or command of the tree reads."""
     tests = (tree.split != 0).sum(axis=1)
-    commands = (tree.weights != 0).sum(axis=2)
+    commands = ((tree.weights != 0).sum(axis=2) if isinstance(tree, ControllerArrays)
+                else np.zeros(1, dtype=np.int64))
     return int(max(tests.max(initial=0), commands.max(initial=0)))
 
 
@@ -227,7 +243,14 @@ def controllers_table(cfg: Config, experts: dict[str, str], episodes: int) -> An
                 row, built = controller_row(task, algo, leaves, seed, cfg, episodes)
                 rows.append({**row, "rules_text": "\n".join(_rules(built.bt))})
         rows.extend(reference_rows(task, episodes, cfg))
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows).reindex(columns=COLUMNS)
+
+
+COLUMNS = ["task", "agent", "learner", "leaves_limit", "seed", "rules", "bt_nodes", "tests",
+           "test_terms", "command_terms", "constants", "max_features_read", "mean_return",
+           "std_return", "episodes", "share_at_200", "distilled_selection_mean",
+           "refined_selection_mean", "digits", "refine_episodes", "states_checked",
+           "disagreements", "source", "rules_text"]
 
 
 def _rules(bt: Any) -> list[str]:
@@ -241,13 +264,13 @@ def summary(table: Any) -> Any:
     episodes, so its number is flattered), beside each reference controller."""
     import pandas as pd
 
-    ours = table[table.learner == LEARNER]
+    ours = table[table.learner.isin(OURS)]
     grouped = ours.groupby(["task", "leaves_limit"]).agg(
         seeds=("seed", "count"), rules=("rules", "max"), bt_nodes=("bt_nodes", "max"),
         mean_of_seeds=("mean_return", "mean"), lowest_seed=("mean_return", "min"),
         best_seed=("mean_return", "max")).reset_index()
-    grouped.insert(2, "what", "controller BT (ours)")
-    refs = table[table.learner != LEARNER].rename(columns={"learner": "what"})
+    grouped.insert(2, "what", "our BT")
+    refs = table[~table.learner.isin(OURS)].rename(columns={"learner": "what"})
     refs = refs.assign(mean_of_seeds=refs.mean_return, best_seed=refs.mean_return,
                        lowest_seed=refs.mean_return, seeds=1)
     columns = ["task", "what", "leaves_limit", "seeds", "rules", "bt_nodes", "mean_of_seeds",
@@ -257,7 +280,7 @@ def summary(table: Any) -> Any:
 
 def best_runs(table: Any) -> Any:
     """Per task, the run with the highest mean return (ties: fewer BT nodes)."""
-    ours = table[table.learner == LEARNER]
+    ours = table[table.learner.isin(OURS)]
     return (ours.sort_values(["task", "mean_return", "bt_nodes"], ascending=[True, False, True])
             .groupby("task").head(1).reset_index(drop=True))
 
@@ -265,3 +288,53 @@ def best_runs(table: Any) -> Any:
 def controller_bt(cfg: Config, task: Task, algo: str, leaves: int, seed: int) -> Any:
     """The verified BT of one run (read from the cache)."""
     return verified(task, algo, leaves, seed, cfg)[2].bt
+
+
+@dataclass(frozen=True)
+class Target:
+    """A bar set before the study's results: at least ``mean_return`` over the final episodes
+    with at most ``rules`` rules and ``bt_nodes`` nodes, beside the named reference."""
+
+    mean_return: float
+    rules: int
+    bt_nodes: int
+    reference: str
+
+
+#: the bars, each a hand-written or symbolic controller's return at a comparable size
+TARGETS: dict[str, Target] = {
+    "LunarLanderContinuous-v3": Target(283.3, 8, 40, "Gymnasium heuristic (283.3)"),
+    "Pendulum-v1": Target(-155.0, 4, 16, "DSP formula (-163.3)"),
+    "MountainCarContinuous-v0": Target(98.5, 2, 8, "DSP's comment, 99.09 (not runnable)"),
+    "LunarLander-v3": Target(240.0, 4, 16, "Gymnasium heuristic (239.6)"),
+}
+
+
+def targets_table(table: Any) -> Any:
+    """Per task with a bar: the best run within the bar's size and the best leaf limit's mean
+    over seeds (both on the same final episodes), and whether each clears the bar."""
+    import pandas as pd
+
+    rows = []
+    for task, target in TARGETS.items():
+        ours = table[(table.task == task) & table.learner.isin(OURS)]
+        if ours.empty:
+            continue
+        fits = ours[(ours.rules <= target.rules) & (ours.bt_nodes <= target.bt_nodes)]
+        best = fits.sort_values(["mean_return", "bt_nodes"], ascending=[False, True]).head(1)
+        by_limit = fits.groupby("leaves_limit").mean_return.agg(["mean", "min", "max", "count"])
+        top = by_limit.sort_values("mean", ascending=False).head(1)
+        rows.append({
+            "task": task, "bar": target.mean_return, "max_rules": target.rules,
+            "max_bt_nodes": target.bt_nodes, "reference": target.reference,
+            "best_run": float(best.mean_return.iloc[0]) if len(best) else None,
+            "best_run_rules": int(best.rules.iloc[0]) if len(best) else None,
+            "best_run_bt_nodes": int(best.bt_nodes.iloc[0]) if len(best) else None,
+            "best_run_seed": int(best.seed.iloc[0]) if len(best) else None,
+            "best_limit": int(top.index[0]) if len(top) else None,
+            "mean_of_seeds": float(top["mean"].iloc[0]) if len(top) else None,
+            "seeds": int(top["count"].iloc[0]) if len(top) else 0,
+            "lowest_seed": float(top["min"].iloc[0]) if len(top) else None,
+            "best_run_clears": bool(len(best) and best.mean_return.iloc[0] >= target.mean_return),
+            "mean_clears": bool(len(top) and top["mean"].iloc[0] >= target.mean_return)})
+    return pd.DataFrame(rows)
