@@ -114,6 +114,7 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
     cache_name = None
     if cache is not None and Path(cache).parent.resolve() == folder.path.resolve():
         cache_name = Path(cache).name
+    folder.cache = cache_name  # recorded by the first marker: a rerun resumes from it
     try:
         entries = sorted(os.scandir(folder.path), key=lambda e: e.name)
     except FileNotFoundError:
@@ -186,10 +187,14 @@ def take(folder: OwnedFolder) -> bool:
 
 
 def release(folder: OwnedFolder) -> None:
-    """Remove the marker :func:`take` wrote first, where no output was written since: a run
-    that failed on bad input leaves the folder as it found it (its cache aside, whose entries
-    are whole and let a corrected rerun resume)."""
+    """Remove the marker :func:`take` wrote first, where no output was written since and the
+    run made no cache in the folder: a run that failed on bad input before any work leaves the
+    folder as it found it. Where its cache exists the marker stays, naming it, so the corrected
+    rerun of the same command resumes from its whole entries."""
     marker = _marker(folder.path)
+    made = marker.get("cache")
+    if isinstance(made, str) and os.path.lexists(folder.path / made):
+        return
     if marker and not marker.get("files"):
         with contextlib.suppress(OSError):
             (folder.path / MARKER).unlink()
