@@ -177,15 +177,22 @@ def sweep_temp_files(path: Path, age: float = STALE_TEMP_SECONDS) -> list[Path]:
     """Remove the hidden temporary files a killed run left beside ``path`` (those of
     :func:`ibt.files.atomic_target`, ``.<name>.XXXXXXXX<suffix>``, and write probes) that were
     last written more than ``age`` seconds ago; returns them."""
+    import re
     import time
 
     removed: list[Path] = []
+    # the names tempfile.mkstemp makes (8 characters of its alphabet): a user's file of a like
+    # name (".bt.json.backup") is not one of ours and stays
+    ours = re.compile(rf"\.{re.escape(path.name)}\.[a-z0-9_]{{8}}{re.escape(path.suffix)}"
+                      r"|\.ibt-probe-[a-z0-9_]{8}")
     try:
         candidates = [*path.parent.glob(f".{glob_escape(path.name)}.*"),
                       *path.parent.glob(".ibt-probe-*")]
     except OSError:
         return removed
     for temp in candidates:
+        if not ours.fullmatch(temp.name):
+            continue
         try:
             if temp.is_file() and not temp.is_symlink() \
                     and time.time() - temp.stat().st_mtime > age:

@@ -24,7 +24,6 @@ import os
 import shutil
 import signal
 import stat
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -124,13 +123,14 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
                           "folder") from None
     marker = _marker(folder.path)
     made = marker.get("cache") if isinstance(marker.get("cache"), str) else None
+    temporaries = _temporaries(marker)
     folder.cache = cache_name or made  # the marker keeps naming a cache a run made here
     foreign: list[str] = []
     refused: list[str] = []
     for entry in entries:
         name, st = entry.name, entry.stat(follow_symlinks=False)
         link = stat.S_ISLNK(st.st_mode)
-        if name.startswith(TEMP_PREFIX) or (name == MARKER and not link):
+        if name in temporaries or (name == MARKER and not link):
             if name == MARKER and read_only(st):
                 refused.append(f"{name} (read-only)")
             continue
@@ -169,21 +169,56 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
 
 def take(folder: OwnedFolder) -> bool:
     """Make the folder (if needed) and mark it as the pipeline's, before the long work; remove
-    the temporary folders killed runs left there. True where this run wrote the first marker
+    the temporary folders killed runs left there (only those the marker records: a folder of
+    the user's with a like name is left alone). True where this run wrote the first marker
     (:func:`release` takes it back when the run fails before writing anything)."""
     folder.path.mkdir(parents=True, exist_ok=True)
     marker = _marker(folder.path)
     first = not marker
-    if not marker or (folder.cache and marker.get("cache") != folder.cache):
-        files = marker.get("files", {})
-        _write_marker(folder.path, {"format": FORMAT, "files": files, "cache": folder.cache,
-                                    "state": marker.get("state", "empty")})
-    for temp in folder.path.glob(f"{TEMP_PREFIX}*"):
+    left = []
+    for name in _temporaries(marker):
+        temp = folder.path / name
         with contextlib.suppress(OSError):
             if temp.is_dir() and not temp.is_symlink() \
                     and time.time() - temp.stat().st_mtime > STALE_SECONDS:
                 shutil.rmtree(temp)
+        if os.path.lexists(temp):
+            left.append(name)
+    if not marker or (folder.cache and marker.get("cache") != folder.cache) \
+            or left != _temporaries(marker):
+        _write_marker(folder.path, {"format": FORMAT, "files": marker.get("files", {}),
+                                    "cache": folder.cache,
+                                    "state": marker.get("state", "empty"),
+                                    "temporaries": left})
     return first
+
+
+def _temporaries(marker: dict[str, Any]) -> list[str]:
+    """The temporary folders the marker records (names made by :func:`_new_temporary`)."""
+    names = marker.get("temporaries")
+    return [n for n in names if isinstance(n, str) and n.startswith(TEMP_PREFIX)
+            and "/" not in n and n not in (".", "..")] if isinstance(names, list) else []
+
+
+def _record_temporary(folder: Path, name: str, add: bool) -> None:
+    """Add ``name`` to (or drop it from) the temporaries the marker records."""
+    marker = _marker(folder)
+    names = [n for n in _temporaries(marker) if n != name] + ([name] if add else [])
+    _write_marker(folder, {**marker, "temporaries": names})
+
+
+def _new_temporary(folder: Path) -> Path:
+    """A new hidden folder for a set's files, recorded in the marker before it is made, so a
+    later run removes it after a kill and never a folder it did not make."""
+    import secrets
+
+    while True:
+        name = f"{TEMP_PREFIX}{secrets.token_hex(6)}"
+        if os.path.lexists(folder / name):
+            continue
+        _record_temporary(folder, name, add=True)
+        (folder / name).mkdir()
+        return folder / name
 
 
 def release(folder: OwnedFolder) -> None:
@@ -260,7 +295,7 @@ def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path
     them, then the commit renames them into place (``last`` after the others, replaced by the
     text ``incomplete`` while they are renamed) and records them in the marker."""
     take(folder)
-    tmp = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX, dir=folder.path))
+    tmp = _new_temporary(folder.path)
     try:
         write(tmp)
         _hook("written")
@@ -280,8 +315,10 @@ def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path
                           new[n]]
                 files[n] = list(dict.fromkeys(d for d in listed if d != "link"))
             files[last] = [*files[last], stub_digest]
+            temporaries = _temporaries(_marker(folder.path))
             _write_marker(folder.path, {"format": FORMAT, "files": files,
-                                        "cache": folder.cache, "state": "writing"})
+                                        "cache": folder.cache, "state": "writing",
+                                        "temporaries": temporaries})
             _hook("commit:marker")
             os.replace(stub, folder.path / last)
             _hook("commit:incomplete")
@@ -291,9 +328,13 @@ def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path
             done = {n: d for n, d in files.items() if n not in names} | {
                 n: [new[n]] for n in names}
             _write_marker(folder.path, {"format": FORMAT, "files": done,
-                                        "cache": folder.cache, "state": "complete"})
+                                        "cache": folder.cache, "state": "complete",
+                                        "temporaries": temporaries})
             folder.replaceable = {n: new[n] for n in names}
             folder.forced, folder.kept = [], []
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+        if not os.path.lexists(tmp):
+            with contextlib.suppress(OSError):
+                _record_temporary(folder.path, tmp.name, add=False)
     return [folder.path / n for n in names]
