@@ -223,6 +223,14 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
                         agent_length=sum(lengths) / len(lengths) if lengths else None)
     if warning:
         ladder.notes.insert(0, warning)
+    from ibt.distill.relational import MAX_PAIRED_FEATURES
+
+    if relational and len(task.feature_names) > MAX_PAIRED_FEATURES:
+        ladder.notes.append(
+            f"{task.name} has {len(task.feature_names):,} features: the relational trees "
+            f"test pairs among at most {MAX_PAIRED_FEATURES} of them (in distillation those an "
+            "axis-aligned tree on the same labels uses most; in the structure search the "
+            "first by index), so that memory grows linearly with the features")
     bar.close()
     elapsed = deadline.elapsed()
     if not ladder.candidates:
