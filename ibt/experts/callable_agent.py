@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ibt.experts.expert import Expert
+from ibt.signals import check_time
 from ibt.tasks.task import Task
 
 #: bump when what an agent's answers become (actions, weights, scores) changes: cache keys move
@@ -189,13 +190,16 @@ class CallableExpert(Expert):
 
     def _call(self, function: Callable[..., Any], what: str, obs: np.ndarray) -> list[Any]:
         """``function``'s answers, one per observation (one call on the batch if batched)."""
+        check_time()  # between the environment's steps: the run's time cap holds here
         answers = []
         for i, x in enumerate([obs] if self.batched else obs):
             where = f"a batch of {len(obs)}" if self.batched else f"observation {i}"
             try:
                 answers.append(function(x.copy() if isinstance(x, np.ndarray) else x))
-            except Exception as err:
-                raise _failed(self.spec, f"{what} on {where}", err, "fix the agent") from err
+            except (Exception, SystemExit) as err:  # sys.exit in an agent is its failure
+                raise _failed(self.spec, f"{what} on {where}", err, "an agent answers, it "
+                              "does not exit; fix the agent" if isinstance(err, SystemExit)
+                              else "fix the agent") from err
         if not self.batched:
             return answers
         try:  # a number or a ragged answer is no batch either
