@@ -54,3 +54,14 @@ def test_md_is_the_identity_on_plain_names():
     for name in ("CartPole-v1", "ppo", "64x64", "zoo:hyperparams/ppo.yml (5e4 steps there)"):
         assert md(name) == name
     assert md_url("data/trees/a b)/x.png") == "data/trees/a%20b%29/x.png"
+
+
+def test_code_blocks_outlast_backticks_in_names():
+    from ibt.pipeline.outputs import fenced
+
+    assert fenced("python -m ibt evaluate bt.json", "bash") == [
+        "```bash", "python -m ibt evaluate bt.json", "```"]
+    block = fenced("python -m ibt pipeline My```Task-v0 ppo\n``````", "bash")
+    fence = block[0].removesuffix("bash")
+    assert fence == "`" * 7 and block[-1] == fence
+    assert fence not in block[1]  # nothing inside can close it

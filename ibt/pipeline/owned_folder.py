@@ -77,8 +77,9 @@ class OwnedFolder:
         if not self.forced:
             return None
         kept = f"; left as they are: {_names(self.kept)}" if self.kept else ""
-        return (f"--force: replacing {_names(self.forced)} in {self.path} (files ibt pipeline "
-                f"did not write; a link is replaced, its target left alone){kept}")
+        link = ("; a link is replaced, its target left alone"
+                if any(f.endswith("(a symbolic link)") for f in self.forced) else "")
+        return f"--force: replacing {_names(self.forced)} in {self.path}{link}{kept}"
 
 
 def _marker(folder: Path) -> dict[str, Any]:
