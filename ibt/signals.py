@@ -1,8 +1,11 @@
 """How a long run is asked to stop: Ctrl-C raises ``KeyboardInterrupt``; SIGTERM, while the
 CLI's handler is installed, raises :class:`Terminated` where the process is, so that it
 unwinds like Ctrl-C; a step that runs too far past the pipeline's ``--time`` is cut by
-:func:`time_cap`, which raises :class:`OverTime` where the process is. Anytime work (the
-pipeline's ladder) catches these between and inside its steps and returns what it has."""
+:func:`time_cap`, which raises :class:`OverTime` where the process is, again every
+:data:`REPEAT_SECONDS` until the cut block ends, and from :func:`check_time`, which code between
+an environment's steps calls, so an environment that swallows exceptions (a bare ``except:``
+around its work) cannot outlast the cap. Anytime work (the pipeline's ladder) catches these
+between and inside its steps and returns what it has."""
 
 from __future__ import annotations
 
@@ -32,8 +35,22 @@ def stop_reason(err: BaseException) -> str:
     return "terminated" if isinstance(err, Terminated) else "interrupted"
 
 
+#: after a cap fires, :class:`OverTime` is raised again this often until its block ends
+REPEAT_SECONDS = 1.0
+_EXPIRED: list[bool] = []  # one flag per active cap, innermost last: whether it has fired
+
+
 def _over_time(signum: int, frame: Any) -> None:
+    if _EXPIRED:
+        _EXPIRED[-1] = True
     raise OverTime
+
+
+def check_time() -> None:
+    """:class:`OverTime` where the innermost active :func:`time_cap` has fired: called between
+    an environment's steps, where no code of the environment's can swallow it."""
+    if _EXPIRED and _EXPIRED[-1]:
+        raise OverTime
 
 
 @contextlib.contextmanager
@@ -47,9 +64,11 @@ def time_cap(seconds: float) -> Iterator[bool]:
         yield False
         return
     previous = signal.signal(signal.SIGALRM, _over_time)
-    signal.setitimer(signal.ITIMER_REAL, max(seconds, 1e-3))
+    signal.setitimer(signal.ITIMER_REAL, max(seconds, 1e-3), REPEAT_SECONDS)
+    _EXPIRED.append(False)
     try:
         yield True
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
+        _EXPIRED.pop()
         signal.signal(signal.SIGALRM, previous)

@@ -5,12 +5,13 @@
     IBT_BENCH_JOBS=1 python -m tests.bench_pipeline lunarlander-dqn  # one process (--jobs 1)
 
 Each case runs ``python -m ibt pipeline`` in a subprocess with a fresh cache (what a new user
-meets), timed as a whole; its row goes into ``data/results/pipeline_bench.csv`` (rows of other
-cases are kept). Agents of the users' own tasks are trained first (seeded; not timed). Then, for
-the cases marked ``full``, the whole ladder is climbed on the same cache (every rung and step,
-whatever kept the target; distillation and refinement, not the structure search, to keep it
-within minutes) to measure how often a larger leaf limit would have given a smaller BT that keeps
-the target, which the ladder's stop rule gives up.
+meets), timed as a whole, with its peak resident memory (``peak_rss_mb``; empty in the rows
+measured before it was recorded); its row goes into ``data/results/pipeline_bench.csv``
+(rows of other cases are kept). Agents of the users' own tasks are trained first (seeded; not
+timed). Then, for the cases marked ``full``, the whole ladder is climbed on the same cache
+(every rung and step, whatever kept the target; distillation and refinement, not the structure
+search, to keep it within minutes) to measure how often a larger leaf limit would have given a
+smaller BT that keeps the target, which the ladder's stop rule gives up.
 """
 
 from __future__ import annotations
@@ -123,7 +124,7 @@ def run(case: Case) -> dict[str, object]:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(OUT)])}
     load = os.getloadavg()[0]
     start = time.perf_counter()
-    done = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True)
+    done, peak_mb = _measured(argv, env)
     wall = time.perf_counter() - start
     said = done.stdout + done.stderr
     match = LINE.search(said)
@@ -137,7 +138,7 @@ def run(case: Case) -> dict[str, object]:
         "met": (match.group(3) == "meets") if match else None,
         "stopped_by_time": "--time budget ended" in said, "cpus": os.cpu_count(),
         "jobs": int(jobs) if jobs else os.cpu_count(),
-        "load_before": round(load, 2)}
+        "load_before": round(load, 2), "peak_rss_mb": peak_mb}
     if not match:
         row["error"] = said.strip().splitlines()[-1] if said.strip() else "no output"
     if case.full and match:
@@ -148,6 +149,22 @@ def run(case: Case) -> dict[str, object]:
     if case.confirm and match:
         row.update(confirm(case, out / "bt.json", case.confirm))
     return row
+
+
+def _measured(argv: list[str], env: dict[str, str]
+              ) -> tuple[subprocess.CompletedProcess[str], float]:
+    """Run ``argv``; what it printed and its peak resident memory in MB (the largest of the
+    process and the worker processes it waited for, as ``wait4`` reports it)."""
+    import tempfile
+
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=out, stderr=err, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        done = subprocess.CompletedProcess(argv, proc.returncode, out.read(), err.read())
+    return done, round(usage.ru_maxrss / 1024, 1)  # Linux reports kilobytes
 
 
 def search_speed(cache: Path) -> dict[str, object]:

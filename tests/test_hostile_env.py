@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "hostile-env.md"
 ENV = "--env-module tests.fixtures.hostile_envs"
 SMOKE = "--budget smoke --quiet"
+EXITS = "tests.fixtures.hostile_exits"
 EARLIER = "bt.json"  # an earlier result in the output folder: a failed run leaves it as it was
 NOTES = "notes.txt"  # the user's own file there: every run leaves it as it was
 
@@ -105,6 +106,21 @@ CASES = [
          f"pipeline Hostile-Endless-v0 ppo --checkpoint AGENT -o OUT --leaves 4 "
          f"--max-episode-steps 25 {SMOKE} {ENV}", 0,
          r"^Hostile-Endless-v0/ppo: recommended a \d+-node BT", "Hostile-Endless-v0"),
+    Case("Discrete(2, start=1) actions",
+         f"pipeline Hostile-StartsAtOne-v0 callable --agent {EXITS}:steady -o OUT {SMOKE} "
+         f"--env-module {EXITS}", 2,
+         r"the environment Hostile-StartsAtOne-v0 numbers its actions from 1 \(Discrete\(2, "
+         r"start=1\)\)", "Hostile-StartsAtOne-v0"),
+    Case("an agent that calls sys.exit(0)",
+         f"pipeline Hostile-Fine-v0 callable --agent {EXITS}:quitter -o OUT {SMOKE} {ENV} "
+         f"--env-module {EXITS}", 2,
+         r"agent 'tests\.fixtures\.hostile_exits:quitter': the agent on observation 0 raised "
+         r"SystemExit: 0", "tests.fixtures.hostile_exits:quitter"),
+    Case("an environment whose step calls sys.exit(0)",
+         f"pipeline Hostile-ExitingStep-v0 callable --agent {EXITS}:steady -o OUT {SMOKE} "
+         f"--env-module {EXITS}", 2,
+         r"the environment of Hostile-ExitingStep-v0 \(or code it runs\) called sys\.exit\(0\)",
+         "Hostile-ExitingStep-v0"),
     *[Case(f"task does not fit: {what}",
            f"evaluate BT --task Hostile-Fine-v0 --env-module {module}", 2,
            rf"the environment module '{module}' registers a task that does not fit: .*{pattern}",

@@ -94,6 +94,24 @@ class Case:
     argv: list[str]
     words: str  # the one line names the culprit with these words
     expected: str  # in docs/hostile-files.md
+    module: str = "ibt"  # python -m MODULE ARGV
+
+
+def _photos(folder: Path) -> None:
+    """A user's folder of photos and letters (no cache)."""
+    for name in ("photos", "letters"):
+        (folder / name).mkdir()
+        (folder / name / "one.txt").write_text(f"the user's {name}\n")
+
+
+def _pipeline_output(folder: Path) -> None:
+    """A pipeline's output folder: its marker, a cache with one entry, the user's notes."""
+    from ibt.cache.store import load_or_compute
+
+    load_or_compute("tree-eval", {"i": 1}, lambda: {"x": 1}, cache_dir=folder / "out" / "cache")
+    (folder / "out" / ".ibt-pipeline.json").write_text(json.dumps(
+        {"format": "ibt-pipeline/1", "files": {}, "cache": "cache"}))
+    (folder / "out" / "notes.txt").write_text("keep me\n")
 
 
 CASES: list[Case] = [
@@ -130,17 +148,28 @@ CASES: list[Case] = [
     Case("run-btcpp with a SubTree", _inputs, ["run-btcpp", "{u}/subtree.xml", "--task",
                                                "CartPole-v1"],
          "node <SubTree>, which ibt does not model", "exit 2 naming SubTree"),
+    Case("cache prune on a folder of photos", _photos,
+         ["prune", "--cache-dir", "{u}", "--incomplete"], "is not an ibt cache (it holds "
+         "letters, photos", "exit 2 naming the folder; nothing removed",
+         module="ibt.cache.admin"),
+    Case("cache stale on a pipeline's output folder", _pipeline_output,
+         ["stale", "--cache-dir", "{u}/out"], "is an output folder of `python -m ibt pipeline`",
+         "exit 2 naming its cache; nothing touched", module="ibt.cache.admin"),
+    Case("cache prune on a pipeline's output folder", _pipeline_output,
+         ["prune", "--cache-dir", "{u}/out"], "is an output folder of `python -m ibt pipeline`",
+         "exit 2 naming its cache; nothing removed", module="ibt.cache.admin"),
     Case("run-btcpp of a Latin-1 file", _inputs, ["run-btcpp", "{u}/latin1.xml", "--task",
                                                   "CartPole-v1"],
          "latin1.xml is not UTF-8 text", "exit 2, one line naming the file"),
 ]
 
 
-def cli(argv: list[str], env: dict[str, str] | None = None, timeout: float = 300
-        ) -> subprocess.CompletedProcess[str]:
-    """``python -m ibt ARGV`` in a fresh process importing this checkout's ``ibt``."""
+def cli(argv: list[str], env: dict[str, str] | None = None, timeout: float = 300,
+        module: str = "ibt") -> subprocess.CompletedProcess[str]:
+    """``python -m MODULE ARGV`` (``ibt``) in a fresh process importing this checkout's
+    ``ibt``."""
     path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
-    return subprocess.run([sys.executable, "-m", "ibt", *map(str, argv)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", module, *map(str, argv)], capture_output=True,
                           text=True, cwd=ROOT, timeout=timeout,
                           env={**os.environ, "PYTHONPATH": path, "SDL_VIDEODRIVER": "dummy",
                                **(env or {})}, preexec_fn=_ctrl_c_default if env else None)
@@ -173,7 +202,7 @@ def _run_case(case: Case, folder: Path) -> tuple[subprocess.CompletedProcess[str
     case.setup(folder)
     before = snapshot(folder)
     argv = [a.replace("{u}", str(folder)) for a in case.argv]
-    return cli(argv), before, snapshot(folder)
+    return cli(argv, module=case.module), before, snapshot(folder)
 
 
 @pytest.fixture(scope="module")
@@ -320,6 +349,16 @@ def test_every_point_of_the_write_phase_leaves_a_whole_set(tmp_path, monkeypatch
         assert not list((tmp_path / str(index)).glob(".ibt-pipeline-new-*"))
 
 
+def test_the_force_note_names_an_edited_file_as_edited(tmp_path):
+    from ibt.pipeline import owned_folder
+
+    folder = owned_folder.claim(tmp_path, NAMES)
+    owned_folder.write_set(folder, NAMES, _writer("old", lambda _: None), "INCOMPLETE")
+    (tmp_path / "report.md").write_text("the user's edit")
+    note = owned_folder.claim(tmp_path, NAMES, force=True).note()
+    assert note == (f"--force: replacing report.md (edited since ibt wrote it) in {tmp_path}")
+
+
 def test_a_file_edited_during_the_run_is_not_replaced(tmp_path):
     from ibt.pipeline import owned_folder
 
@@ -387,7 +426,8 @@ if __name__ == "__main__":  # the table of docs/hostile-files.md, from real runs
         print("| case | command | expected | observed |\n|---|---|---|---|")
         for i, case in enumerate(CASES):
             run, before, after = _run_case(case, Path(scratch) / f"case{i}")
-            command = "python -m ibt " + " ".join(a.replace("{u}", "DIR") for a in case.argv)
+            command = f"python -m {case.module} " + " ".join(a.replace("{u}", "DIR")
+                                                              for a in case.argv)
             line = run.stderr.strip().replace(str(Path(scratch) / f"case{i}"), "DIR")
             intact = "files intact" if after == before else "FILES CHANGED"
             print(f"| {case.name} | `{command}` | {case.expected} | exit {run.returncode}; "

@@ -15,6 +15,10 @@ those) and ``incomplete`` entries that still hold a payload: those only with ``-
 anyway). ``verify`` reads every entry as a lookup would and lists those that do not verify
 (exit 1 if any). ``summary`` counts entries per kind and status.
 
+Every command first checks that ``--cache-dir`` is an ibt cache
+(:func:`ibt.cache.upkeep.check_cache_root`: its marker, or a cache's layout): a folder of
+other files, or a pipeline's output folder, is refused with exit 2, nothing touched.
+
 Migrations: ``migrate`` is the one-off re-keying of 2026-11, ``migrate-plain --trust-pickles``
 the plain-data conversion of 2026-12 (:mod:`ibt.cache.migrations` says what each does).
 """
@@ -29,7 +33,16 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ibt.cache.migrations import migrate, migrate_plain, pickled_entries
-from ibt.cache.upkeep import Entry, entries, not_current, prune, read_log, verify
+from ibt.cache.upkeep import (
+    Entry,
+    NotACache,
+    check_cache_root,
+    entries,
+    not_current,
+    prune,
+    read_log,
+    verify,
+)
 
 
 def _listing(found: Sequence[Entry]) -> str:
@@ -62,6 +75,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.cache_dir.is_dir():
         print(f"error: no cache at {args.cache_dir}; pass --cache-dir", file=sys.stderr)
+        return 2
+    try:
+        check_cache_root(args.cache_dir)
+    except NotACache as err:
+        print(f"error: {err}", file=sys.stderr)
         return 2
     if args.reads is not None and not args.reads.is_dir():
         print(f"error: no reads log at {args.reads}; run with IBT_CACHE_READS={args.reads} "

@@ -92,6 +92,12 @@ CODE_VERSIONS: dict[str, int] = {
     "controller-refine": 1,  # refined: ibt.refine.controller.refine_controller
 }
 READS_ENV = "IBT_CACHE_READS"
+#: written into a cache root that ibt creates (or finds empty) at its first entry: the proof
+#: that ``python -m ibt.cache.admin`` may remove entries there. Caches made before it (the
+#: committed ``data/cache`` among them) are recognised by their layout instead
+#: (:func:`ibt.cache.upkeep.check_cache_root`) and are not marked, so a checkout stays clean.
+ROOT_MARKER = "ibt-cache.json"
+ROOT_FORMAT = "ibt-cache/1"
 
 
 def canonical(params: Any) -> str:
@@ -286,6 +292,7 @@ def load_or_compute(kind: str, params: dict[str, Any], compute: Callable[[], Any
                               payload_sha256=payload_digest(data))
     created = not entry.exists()
     try:
+        mark_new_root(Path(cache_dir))
         write_entry(entry, spec.suffix, data, manifest)
     except OSError as err:
         if created:  # leave no empty folder behind
@@ -302,6 +309,23 @@ def load_or_compute(kind: str, params: dict[str, Any], compute: Callable[[], Any
 
 
 _UNWRITABLE: set[str] = set()  # cache folders already reported as not writable
+_CHECKED_ROOTS: set[str] = set()  # cache roots this process has looked at for a marker
+
+
+def mark_new_root(root: Path) -> None:
+    """Make ``root`` with its :data:`ROOT_MARKER` where it does not exist or is empty (once per
+    root and process); a root that holds anything already is left as it is."""
+    if str(root) in _CHECKED_ROOTS:
+        return
+    _CHECKED_ROOTS.add(str(root))
+    try:
+        with os.scandir(root) as found:
+            if next(found, None) is not None:
+                return
+    except FileNotFoundError:
+        pass
+    root.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(root / ROOT_MARKER, json.dumps({"format": ROOT_FORMAT}) + "\n")
 
 
 def write_entry(entry: Path, suffix: str, data: bytes, manifest: dict[str, Any]) -> None:

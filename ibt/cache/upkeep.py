@@ -13,6 +13,14 @@ Every entry of ``<cache>/<kind>/<key>/`` is, by its ``manifest.json``, one of:
 - ``unmigrated``: current, but its payload is a pickle or its manifest records no digest (a
   lookup recomputes it; ``migrate-plain`` converts it in place).
 
+Upkeep works only in a folder it can prove is an ibt cache (:func:`check_cache_root`): one
+whose root marker ibt wrote when it created it (:data:`ibt.cache.store.ROOT_MARKER`), or, for
+caches made before the marker (the committed ``data/cache``), one whose layout is a cache's
+(every folder a cache kind of entry folders, no other file than ``code_hashes.json``); a
+pipeline's output folder (which holds its cache one level down) is named as such. ``prune``
+removes only folders that look like an entry ibt wrote (a 16-hex-digit key holding only
+``manifest.json``, ``payload.*`` and their temporary files) and those temporary files.
+
 Beside them, ``temporary`` files (``.payload.*``, ``.manifest.*``) are what an atomic write
 killed mid-way leaves; those younger than :data:`TEMP_GRACE_SECONDS` may be a write in progress
 and are left alone.
@@ -21,6 +29,7 @@ and are left alone.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import time
 from collections.abc import Iterator
@@ -32,6 +41,8 @@ from ibt.cache import payloads
 from ibt.cache.store import (
     CODE_VERSIONS,
     KEY_PACKAGES,
+    ROOT_FORMAT,
+    ROOT_MARKER,
     cache_key,
     key_packages,
     legacy_cache_key,
@@ -40,6 +51,57 @@ from ibt.cache.store import (
 STATUSES = ("current", "stale", "orphan", "incomplete", "legacy", "unmigrated", "temporary")
 #: Temporary files younger than this may belong to a write in progress: neither listed nor pruned.
 TEMP_GRACE_SECONDS = 60.0
+#: the files a cache root may hold beside its kinds' folders
+ROOT_FILES = ("code_hashes.json", ROOT_MARKER)
+KEY_NAME = re.compile(r"[0-9a-f]{16}")
+ENTRY_FILE = re.compile(r"manifest\.json|payload\.\w+|\.(payload|manifest)\..+")
+PIPELINE_MARKER = ".ibt-pipeline.json"  # ibt.pipeline.owned_folder.MARKER (a higher layer)
+
+
+class NotACache(ValueError):
+    """A folder upkeep may not touch: not an ibt cache (one line naming it)."""
+
+
+def _marked(root: Path) -> bool:
+    try:
+        doc = json.loads((root / ROOT_MARKER).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and doc.get("format") == ROOT_FORMAT
+
+
+def check_cache_root(root: str | Path) -> None:
+    """:class:`NotACache` unless ``root`` is an ibt cache (see the module docstring)."""
+    root = Path(root)
+    if (root / PIPELINE_MARKER).exists():
+        try:
+            made = json.loads((root / PIPELINE_MARKER).read_text()).get("cache") or "cache"
+        except (OSError, ValueError, AttributeError):
+            made = "cache"
+        raise NotACache(f"{root} is an output folder of `python -m ibt pipeline`, not a cache: "
+                        f"nothing was done; its cache is {root / str(made)} (pass "
+                        f"--cache-dir {root / str(made)})")
+    if _marked(root):
+        return
+    foreign = []
+    for child in sorted(root.iterdir()):
+        if child.is_symlink() or not ((child.is_dir() and child.name in CODE_VERSIONS)
+                                      or (child.is_file() and child.name in ROOT_FILES)):
+            foreign.append(child.name)
+    if foreign:
+        shown = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more"
+                                          if len(foreign) > 4 else "")
+        raise NotACache(f"{root} is not an ibt cache (it holds {shown}, which ibt does not "
+                        "write there): nothing was done; pass --cache-dir the folder ibt "
+                        "wrote its cache to")
+
+
+def _ibt_entry(path: Path) -> bool:
+    """Whether ``path`` looks like an entry folder ibt wrote (what prune may remove)."""
+    if path.is_symlink() or not path.is_dir() or not KEY_NAME.fullmatch(path.name):
+        return False
+    return all(ENTRY_FILE.fullmatch(f.name) and f.is_file() and not f.is_symlink()
+               for f in path.iterdir())
 
 @dataclass(frozen=True)
 class Entry:
@@ -174,7 +236,10 @@ def prunable(entry: Entry, *, incomplete: bool = False) -> bool:
 def prune(cache_dir: str | Path, reads: set[str] | None = None, *, dry_run: bool = False,
           incomplete: bool = False) -> list[Entry]:
     """Remove what :func:`not_current` lists and :func:`prunable` allows; return it."""
-    doomed = [e for e in not_current(cache_dir, reads) if prunable(e, incomplete=incomplete)]
+    check_cache_root(cache_dir)
+    doomed = [e for e in not_current(cache_dir, reads) if prunable(e, incomplete=incomplete)
+              and (_ibt_entry(e.path) if e.status != "temporary"
+                   else e.path.is_file() and not e.path.is_symlink())]
     if not dry_run:
         for entry in doomed:
             if entry.status == "temporary":

@@ -177,15 +177,22 @@ def sweep_temp_files(path: Path, age: float = STALE_TEMP_SECONDS) -> list[Path]:
     """Remove the hidden temporary files a killed run left beside ``path`` (those of
     :func:`ibt.files.atomic_target`, ``.<name>.XXXXXXXX<suffix>``, and write probes) that were
     last written more than ``age`` seconds ago; returns them."""
+    import re
     import time
 
     removed: list[Path] = []
+    # the names tempfile.mkstemp makes (8 characters of its alphabet): a user's file of a like
+    # name (".bt.json.backup") is not one of ours and stays
+    ours = re.compile(rf"\.{re.escape(path.name)}\.[a-z0-9_]{{8}}{re.escape(path.suffix)}"
+                      r"|\.ibt-probe-[a-z0-9_]{8}")
     try:
         candidates = [*path.parent.glob(f".{glob_escape(path.name)}.*"),
                       *path.parent.glob(".ibt-probe-*")]
     except OSError:
         return removed
     for temp in candidates:
+        if not ours.fullmatch(temp.name):
+            continue
         try:
             if temp.is_file() and not temp.is_symlink() \
                     and time.time() - temp.stat().st_mtime > age:
@@ -310,12 +317,37 @@ def task_for(args: argparse.Namespace, name: str) -> Task:
 
     task = resolve_task(name)
     check_user_task(task)
+    check_action_start(task)
     task, notice = with_episode_cap(task, getattr(args, "max_episode_steps", None))
     said = args.__dict__.setdefault("notices_said", set())
     if notice is not None and notice not in said:
         said.add(notice)
         print(notice, file=sys.stderr)
     return task
+
+
+def check_action_start(task: Task) -> None:
+    """:class:`UsageError` where a user's discrete environment numbers its actions from
+    ``start != 0`` (``Discrete(n, start=k)``): ibt's actions are ``0..n-1``, and an action
+    sent outside the space would blame the environment for ibt's mistake."""
+    from ibt.tasks.catalogue import BUILTIN_BY_NAME
+
+    if task.continuous or BUILTIN_BY_NAME.get(task.name) is task:
+        return
+    try:
+        env = task.make_env()
+    except Exception:  # check_user_task has named a failing constructor already
+        return
+    try:
+        start = int(getattr(env.action_space, "start", 0))
+        n = int(getattr(env.action_space, "n", 0))
+    finally:
+        env.close()
+    if start != 0:
+        raise UsageError(f"the environment {task.gym_id} numbers its actions from {start} "
+                         f"(Discrete({n}, start={start})); ibt numbers a task's actions 0 to "
+                         f"{n - 1}: register it with Discrete({n}) (start 0), or wrap it in a "
+                         "gymnasium.ActionWrapper that adds the offset")
 
 
 # ------------------------------------------------------------------------ tree files

@@ -72,6 +72,12 @@ def pipeline_command(args: argparse.Namespace) -> int:
                             env_modules=args.env_module, time_limit=args.time,
                             max_nodes=args.max_nodes, restarts=args.restarts,
                             n_jobs=args.jobs or os.cpu_count() or 1)
+    except SystemExit as stop:  # the agent's or the environment's code called sys.exit
+        if first:
+            release(folder)
+        raise UsageError(f"the environment of {task.name} (or code it runs) called "
+                         f"sys.exit({stop.code!r}) during the run; an environment must not "
+                         "exit the process: fix it (no output file was written)") from None
     except BaseException:
         if first:
             release(folder)

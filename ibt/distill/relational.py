@@ -11,8 +11,10 @@ synthesis, refinement) sees augmented column indices.
 tree with ``max_leaf_nodes``: the leaf whose best split decreases the weighted Gini impurity
 most is split next), where each node's split is searched over the axis-aligned columns *and*
 the candidate derived columns (every pair of non-binary features with every weight pair of
-:data:`ibt.bt.linear.DEFAULT_WEIGHTS`), and a relational split is taken only where its impurity
-decrease exceeds the best axis-aligned split's by the factor ``1 + margin``
+:data:`ibt.bt.linear.DEFAULT_WEIGHTS`; beyond :data:`MAX_PAIRED_FEATURES` such features, the
+pairs among those an axis-aligned tree on the same rows uses, most important first, so the
+columns, and memory, grow linearly with the features), and a relational split is taken only
+where its impurity decrease exceeds the best axis-aligned split's by the factor ``1 + margin``
 (:data:`DEFAULT_MARGIN`): a harder-to-read test must pay for itself. The search per node runs
 on per-column histograms (at most :data:`MAX_BINS` candidate thresholds per column, from the
 column's quantiles over the whole fit set); the best axis-aligned and the best relational
@@ -41,6 +43,10 @@ DEFAULT_MARGIN = 0.1
 MAX_BINS = 255  # candidate thresholds per column in the histogram search
 _CHUNK = 1 << 22  # histogram entries per bincount call (memory bound)
 _PURE = 1e-7  # a node with less Gini impurity is a leaf (scikit-learn's EPSILON is smaller)
+#: at most this many features are paired into derived columns (every task of the catalogue
+#: has fewer, highway-fast-v0 the most with 25, so none of their candidates changes): beyond,
+#: C(n, 2) pairs of a 1,000-feature task would take gigabytes
+MAX_PAIRED_FEATURES = 32
 
 
 class RelationalTreeClassifier(DecisionTreeClassifier):
@@ -114,11 +120,36 @@ def _non_binary(x: np.ndarray) -> list[int]:
     return [i for i in range(x.shape[1]) if len(np.unique(x[:, i][:64_000])) > 2]
 
 
-def candidate_map(x: np.ndarray, weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS
-                  ) -> FeatureMap:
-    """Every pair of the non-binary features of ``x`` with every weight pair."""
+def paired_features(x: np.ndarray, among: Sequence[int] | None = None) -> list[int]:
+    """The features whose pairs become candidate columns: the non-binary ones of ``x`` (those
+    of ``among`` where given, in its order of preference), at most :data:`MAX_PAIRED_FEATURES`
+    of them (the first: by index where ``among`` is not given), in index order."""
+    features = _non_binary(x)
+    if among is not None:
+        allowed = set(features)
+        features = [i for i in among if i in allowed]
+    return sorted(features[:MAX_PAIRED_FEATURES])
+
+
+def axis_preferred(x: np.ndarray, y: np.ndarray, sample_weight: np.ndarray | None = None,
+                   max_leaf_nodes: int | None = None) -> list[int] | None:
+    """Where ``x`` has more than :data:`MAX_PAIRED_FEATURES` non-binary features: those an
+    axis-aligned tree on the same rows uses, most important first (then the rest in index
+    order); None otherwise (every feature is paired)."""
+    if len(_non_binary(x)) <= MAX_PAIRED_FEATURES:
+        return None
+    tree = DecisionTreeClassifier(max_leaf_nodes=max(max_leaf_nodes or 0, MAX_PAIRED_FEATURES),
+                                  random_state=0).fit(x, y, sample_weight=sample_weight)
+    importance = tree.feature_importances_
+    return sorted(range(x.shape[1]), key=lambda i: (-importance[i], i))
+
+
+def candidate_map(x: np.ndarray, weights: Sequence[tuple[float, float]] = DEFAULT_WEIGHTS,
+                  among: Sequence[int] | None = None) -> FeatureMap:
+    """Every pair of the paired features of ``x`` (:func:`paired_features`) with every weight
+    pair."""
     x = np.asarray(x)
-    return FeatureMap.pairs(x.shape[1], weights, _non_binary(x))
+    return FeatureMap.pairs(x.shape[1], weights, paired_features(x, among))
 
 
 def one_significant(value: float) -> float:
@@ -137,7 +168,7 @@ def scaled_candidate_map(x: np.ndarray,
     :func:`candidate_map`'s. A feature that does not vary is left out."""
     x = np.asarray(x, dtype=np.float64)
     spread = x.std(axis=0)
-    features = [i for i in _non_binary(x) if spread[i] > 0]
+    features = [i for i in paired_features(x) if spread[i] > 0]
     forms: list[LinearForm] = []
     for a, i in enumerate(features):
         for j in features[a + 1:]:
@@ -287,7 +318,8 @@ def fit_relational_tree(x: np.ndarray, y: np.ndarray, *, max_leaf_nodes: int | N
                          f"{np.shape(y)}")
     if max_leaf_nodes is not None and max_leaf_nodes < 2:
         raise ValueError(f"max_leaf_nodes must be at least 2, got {max_leaf_nodes}")
-    candidates = feature_map or candidate_map(x, settings.weights)
+    candidates = feature_map or candidate_map(
+        x, settings.weights, axis_preferred(x, y, sample_weight, max_leaf_nodes))
     with np.errstate(over="ignore"):
         xf = candidates.augment(x).astype(np.float32)  # as scikit-learn casts its input
     if not np.isfinite(xf).all():

@@ -27,6 +27,7 @@ class Deadline:
                  ) -> None:
         self.seconds, self.clock = seconds, clock
         self.start = clock()
+        self._grace: float | None = None
 
     def passed(self) -> bool:
         return self.seconds is not None and self.clock() - self.start >= self.seconds
@@ -40,7 +41,18 @@ class Deadline:
 
     def grace(self) -> float:
         """Seconds past the budget a step under way may take before it is cut."""
+        if self._grace is not None:
+            return self._grace
         return 0.0 if self.seconds is None else max(GRACE_MIN, GRACE_SHARE * self.seconds)
+
+    def reserving(self, seconds: float) -> Deadline:
+        """The same budget from the same start, less ``seconds`` kept for work after it (the
+        pipeline's confirmation), and its grace the same as this one's."""
+        inner = Deadline(None if self.seconds is None else max(self.seconds - seconds, 0.0),
+                         self.clock)
+        inner.start = self.start
+        inner._grace = self.grace()
+        return inner
 
 
 class Pace:

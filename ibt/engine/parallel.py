@@ -19,6 +19,46 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 DASK_ENV = "IBT_DASK_SCHEDULER"
+#: seconds to connect to the scheduler and finish the handshake before giving up (an address
+#: that accepts and never answers would otherwise hang the run with no word)
+DASK_TIMEOUT = 30.0
+
+
+def dask_client(address: str, timeout: float | None = None) -> Any:
+    """A Dask client of the scheduler at ``address``; ``RuntimeError`` (one line naming
+    :data:`DASK_ENV`) when none answers within ``timeout`` seconds (:data:`DASK_TIMEOUT`)."""
+    seconds = DASK_TIMEOUT if timeout is None else timeout
+    said = (f"{DASK_ENV}={address}: no Dask scheduler answered within {seconds:.0f} s")
+    fix = (f"start the scheduler there, or unset {DASK_ENV} to run on this machine's cores")
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise RuntimeError(f"{DASK_ENV}={address}: dask.distributed is not installed; install "
+                           f"it (pip install distributed) or unset {DASK_ENV}") from None
+    # the connection and the handshake in a daemon thread, so that a scheduler that accepts
+    # and never answers cannot outlast the timeout whatever Dask's own timeouts do
+    import threading
+
+    outcome: list[Any] = []
+
+    def connect() -> None:
+        try:
+            outcome.append(Client(address, timeout=f"{seconds}s"))
+        except BaseException as err:  # handed to the caller below
+            outcome.append(err)
+
+    thread = threading.Thread(target=connect, name="ibt-dask-connect", daemon=True)
+    thread.start()
+    thread.join(seconds + 5)
+    if not outcome:
+        raise RuntimeError(f"{said}; {fix}")
+    if not isinstance(outcome[0], BaseException):
+        return outcome[0]
+    err = outcome[0]
+    if not isinstance(err, OSError | TimeoutError | ValueError | RuntimeError):
+        raise err
+    why = " ".join(f"{type(err).__name__}: {err}".split())[:200]
+    raise RuntimeError(f"{said} ({why}); {fix}") from None
 
 
 def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_jobs: int = 1
@@ -34,12 +74,15 @@ def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_j
     args = [(here, fn, *a) for a in args]
     fn = _here
     if address:
-        from dask.distributed import Client
-
-        client = Client(address)
+        client = dask_client(address)
         try:
             with parallel_config(backend="dask"):
                 return list(Parallel(n_jobs=-1)(delayed(fn)(*a) for a in args))
+        except (OSError, TimeoutError) as err:  # the cluster, not the work: name where it is
+            why = " ".join(f"{type(err).__name__}: {err}".split())[:200]
+            raise RuntimeError(f"{DASK_ENV}={address}: the Dask cluster failed ({why}); check "
+                               f"the scheduler and its workers, or unset {DASK_ENV} to run on "
+                               "this machine's cores") from None
         finally:
             client.close()
     with parallel_config(backend="loky", n_jobs=n_jobs), warnings.catch_warnings():

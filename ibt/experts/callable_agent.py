@@ -28,6 +28,7 @@ import importlib
 import importlib.util
 import operator
 import sys
+import types
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ibt.experts.expert import Expert
+from ibt.signals import check_time
 from ibt.tasks.task import Task
 
 #: bump when what an agent's answers become (actions, weights, scores) changes: cache keys move
@@ -68,17 +70,17 @@ def _failed(spec: str, doing: str, err: BaseException, fix: str) -> ValueError:
     return ValueError(f"agent {spec!r}: {doing} raised {text[:300]}; {fix}")
 
 
-@functools.lru_cache(maxsize=32)  # each version of a file (mtime, size) is executed once
-def _load_file(path: str, _mtime: int, _size: int) -> Any:
-    name = "_ibt_agent_" + hashlib.sha256(path.encode()).hexdigest()[:16]
-    loader_spec = importlib.util.spec_from_file_location(name, path)
-    if loader_spec is None or loader_spec.loader is None:
-        raise ImportError(f"{path} is not loadable as Python source")
-    module = importlib.util.module_from_spec(loader_spec)
+@functools.lru_cache(maxsize=32)  # each version of a file (its bytes' digest) runs once
+def _load_file(path: str, digest: str, source: bytes) -> Any:
+    """The module of ``source`` (the bytes of the file at ``path`` that were digested), run
+    under a private name with ``path`` as its ``__file__``: never the file read again."""
+    name = "_ibt_agent_" + hashlib.sha256(f"{path}\0{digest}".encode()).hexdigest()[:16]
+    module = types.ModuleType(name)
+    module.__file__ = path
     sys.modules[name] = module  # as an import does (dataclasses and the like look it up)
     sys.path.insert(0, folder := str(Path(path).parent))  # its neighbours import, as a script's
     try:
-        loader_spec.loader.exec_module(module)
+        exec(compile(source, path, "exec"), module.__dict__)
     except BaseException:
         sys.modules.pop(name, None)
         raise
@@ -87,11 +89,12 @@ def _load_file(path: str, _mtime: int, _size: int) -> Any:
     return module
 
 
-def _import(spec: str, module: str, is_file: bool) -> Any:
+def _import(spec: str, module: str, is_file: bool, source: bytes | None = None) -> Any:
     if is_file:
         path = _module_file(spec, module)
+        data = path.read_bytes() if source is None else source
         try:
-            return _load_file(str(path), path.stat().st_mtime_ns, path.stat().st_size)
+            return _load_file(str(path), hashlib.sha256(data).hexdigest(), data)
         except (Exception, SystemExit) as err:
             raise _failed(spec, f"loading {path}", err, "fix the module (`python "
                           f"{path}` shows the traceback)") from err
@@ -102,12 +105,21 @@ def _import(spec: str, module: str, is_file: bool) -> Any:
                       f"file (`python -c 'import {module}'` shows the traceback)") from err
 
 
-def load_callable_agent(task: Task, spec: str) -> CallableExpert:
+def load_callable_agent(task: Task, spec: str, source: bytes | None = None,
+                        digest: str | None = None) -> CallableExpert:
     """The agent ``MODULE:FUNCTION`` as an expert of ``task``: ``FileNotFoundError`` for a
     missing file, else ``ValueError`` (one line naming ``spec`` and the fix) for a malformed
-    spec, a module that fails to import, a missing or uncallable attribute."""
+    spec, a module that fails to import, a missing or uncallable attribute.
+
+    ``source``: the bytes of the ``.py`` file that were digested (:func:`agent_source`), run
+    instead of the file read again; ``digest``: for a module given by name (imported, not run
+    from bytes), :func:`agent_digest` it must still have (``ValueError`` if it changed)."""
     module_name, function, is_file = parse_spec(spec)
-    target: Any = _import(spec, module_name, is_file)
+    target: Any = _import(spec, module_name, is_file, source)
+    if digest is not None and not is_file and agent_digest(spec) != digest:
+        raise ValueError(f"agent {spec!r}: its module changed while the run went on (its digest "
+                         "is not the one the run's results are filed under); rerun once it is "
+                         "no longer being written")
     for depth, part in enumerate(function.split(".")):
         try:
             target = getattr(target, part)
@@ -125,7 +137,13 @@ def agent_digest(spec: str) -> str:
     """sha256 (hex) of an agent for cache keys: :data:`VERSION`, FUNCTION's name and the bytes
     of the module's file (a module without a source file: its name). Edits to other files it
     imports or data it reads are NOT seen: results from before such an edit stay cached."""
-    module, function, is_file = parse_spec(spec)
+    return source_digest(spec, agent_source(spec))
+
+
+def agent_source(spec: str) -> bytes | None:
+    """The bytes of the agent's module file, read once (None: a module without a source
+    file)."""
+    module, _, is_file = parse_spec(spec)
     if is_file:
         source: Path | None = _module_file(spec, module)
     else:
@@ -135,8 +153,14 @@ def agent_digest(spec: str) -> str:
             raise ValueError(f"agent {spec!r}: no module named {module!r} can be found; pass a "
                              ".py file, or add its package to PYTHONPATH") from None
         source = Path(origin) if origin and Path(origin).is_file() else None
+    return source.read_bytes() if source is not None else None
+
+
+def source_digest(spec: str, source: bytes | None) -> str:
+    """:func:`agent_digest` of the agent whose module file holds ``source``."""
+    module, function, _ = parse_spec(spec)
     digest = hashlib.sha256(f"ibt callable agent v{VERSION}\0{function}\0".encode())
-    digest.update(source.read_bytes() if source is not None else f"module {module}".encode())
+    digest.update(source if source is not None else f"module {module}".encode())
     return digest.hexdigest()
 
 
@@ -166,13 +190,16 @@ class CallableExpert(Expert):
 
     def _call(self, function: Callable[..., Any], what: str, obs: np.ndarray) -> list[Any]:
         """``function``'s answers, one per observation (one call on the batch if batched)."""
+        check_time()  # between the environment's steps: the run's time cap holds here
         answers = []
         for i, x in enumerate([obs] if self.batched else obs):
             where = f"a batch of {len(obs)}" if self.batched else f"observation {i}"
             try:
                 answers.append(function(x.copy() if isinstance(x, np.ndarray) else x))
-            except Exception as err:
-                raise _failed(self.spec, f"{what} on {where}", err, "fix the agent") from err
+            except (Exception, SystemExit) as err:  # sys.exit in an agent is its failure
+                raise _failed(self.spec, f"{what} on {where}", err, "an agent answers, it "
+                              "does not exit; fix the agent" if isinstance(err, SystemExit)
+                              else "fix the agent") from err
         if not self.batched:
             return answers
         try:  # a number or a ragged answer is no batch either

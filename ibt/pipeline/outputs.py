@@ -306,7 +306,7 @@ def report_text(rec: Recommendation, out: Path) -> str:
         "the target.",
         "", *rows, "", "![front](front.png)", "", *ladder_text(rec),
         "## The BT as rules (the first rule that holds decides)", "",
-        "```", rules_text(c.bt), "```", "", "![the BT](bt.png)", "",
+        *fenced(rules_text(c.bt)), "", "![the BT](bt.png)", "",
         "## Files", "",
         "`bt.json` (this package's BT format), `bt.xml` (BehaviorTree.CPP v4, portable "
         f"flavour), `bt.png`/`bt.svg` (drawing), `front.png`, this report; `{cache}` holds "
@@ -317,8 +317,18 @@ def report_text(rec: Recommendation, out: Path) -> str:
         f"{rec.seed}, budget {rec.budget.text}, leaf limits "
         f"{', '.join(map(str, rec.leaf_limits))}; the same command on the same machine gives "
         "the same files.", "",
-        "```bash", *commands(rec, out), "```", ""]
+        *fenced("\n".join(commands(rec, out)), "bash"), ""]
     return "\n".join(lines)
+
+
+def fenced(text: str, info: str = "") -> list[str]:
+    """``text`` as a Markdown code block whose fence is longer than any run of backticks in it
+    (a name holding "```" cannot end the block early)."""
+    import re
+
+    longest = max((len(run) for run in re.findall(r"`+", text)), default=0)
+    fence = "`" * max(3, longest + 1)
+    return [fence + info, text, fence]
 
 
 def stopped_note(stopped: str) -> str:
@@ -335,8 +345,8 @@ def incomplete_text(rec: Recommendation, out: Path) -> str:
     leaves it there."""
     return (f"# Incomplete: {out} was being rewritten\n\n`python -m ibt pipeline` stopped while "
             "it renamed its new files into place, so this folder may mix files of two runs. "
-            f"Rerun it (every finished step is cached):\n\n```bash\n{commands(rec, out)[0]}\n"
-            "```\n")
+            "Rerun it (every finished step is cached):\n\n"
+            + "\n".join(fenced(commands(rec, out)[0], "bash")) + "\n")
 
 
 def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Path]:

@@ -24,7 +24,6 @@ import os
 import shutil
 import signal
 import stat
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -78,8 +77,9 @@ class OwnedFolder:
         if not self.forced:
             return None
         kept = f"; left as they are: {_names(self.kept)}" if self.kept else ""
-        return (f"--force: replacing {_names(self.forced)} in {self.path} (files ibt pipeline "
-                f"did not write; a link is replaced, its target left alone){kept}")
+        link = ("; a link is replaced, its target left alone"
+                if any(f.endswith("(a symbolic link)") for f in self.forced) else "")
+        return f"--force: replacing {_names(self.forced)} in {self.path}{link}{kept}"
 
 
 def _marker(folder: Path) -> dict[str, Any]:
@@ -114,6 +114,7 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
     cache_name = None
     if cache is not None and Path(cache).parent.resolve() == folder.path.resolve():
         cache_name = Path(cache).name
+    folder.cache = cache_name  # recorded by the first marker: a rerun resumes from it
     try:
         entries = sorted(os.scandir(folder.path), key=lambda e: e.name)
     except FileNotFoundError:
@@ -123,13 +124,14 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
                           "folder") from None
     marker = _marker(folder.path)
     made = marker.get("cache") if isinstance(marker.get("cache"), str) else None
+    temporaries = _temporaries(marker)
     folder.cache = cache_name or made  # the marker keeps naming a cache a run made here
     foreign: list[str] = []
     refused: list[str] = []
     for entry in entries:
         name, st = entry.name, entry.stat(follow_symlinks=False)
         link = stat.S_ISLNK(st.st_mode)
-        if name.startswith(TEMP_PREFIX) or (name == MARKER and not link):
+        if name in temporaries or (name == MARKER and not link):
             if name == MARKER and read_only(st):
                 refused.append(f"{name} (read-only)")
             continue
@@ -168,28 +170,67 @@ def claim(path: str | Path, names: tuple[str, ...], *, force: bool = False,
 
 def take(folder: OwnedFolder) -> bool:
     """Make the folder (if needed) and mark it as the pipeline's, before the long work; remove
-    the temporary folders killed runs left there. True where this run wrote the first marker
+    the temporary folders killed runs left there (only those the marker records: a folder of
+    the user's with a like name is left alone). True where this run wrote the first marker
     (:func:`release` takes it back when the run fails before writing anything)."""
     folder.path.mkdir(parents=True, exist_ok=True)
     marker = _marker(folder.path)
     first = not marker
-    if not marker or (folder.cache and marker.get("cache") != folder.cache):
-        files = marker.get("files", {})
-        _write_marker(folder.path, {"format": FORMAT, "files": files, "cache": folder.cache,
-                                    "state": marker.get("state", "empty")})
-    for temp in folder.path.glob(f"{TEMP_PREFIX}*"):
+    left = []
+    for name in _temporaries(marker):
+        temp = folder.path / name
         with contextlib.suppress(OSError):
             if temp.is_dir() and not temp.is_symlink() \
                     and time.time() - temp.stat().st_mtime > STALE_SECONDS:
                 shutil.rmtree(temp)
+        if os.path.lexists(temp):
+            left.append(name)
+    if not marker or (folder.cache and marker.get("cache") != folder.cache) \
+            or left != _temporaries(marker):
+        _write_marker(folder.path, {"format": FORMAT, "files": marker.get("files", {}),
+                                    "cache": folder.cache,
+                                    "state": marker.get("state", "empty"),
+                                    "temporaries": left})
     return first
 
 
+def _temporaries(marker: dict[str, Any]) -> list[str]:
+    """The temporary folders the marker records (names made by :func:`_new_temporary`)."""
+    names = marker.get("temporaries")
+    return [n for n in names if isinstance(n, str) and n.startswith(TEMP_PREFIX)
+            and "/" not in n and n not in (".", "..")] if isinstance(names, list) else []
+
+
+def _record_temporary(folder: Path, name: str, add: bool) -> None:
+    """Add ``name`` to (or drop it from) the temporaries the marker records."""
+    marker = _marker(folder)
+    names = [n for n in _temporaries(marker) if n != name] + ([name] if add else [])
+    _write_marker(folder, {**marker, "temporaries": names})
+
+
+def _new_temporary(folder: Path) -> Path:
+    """A new hidden folder for a set's files, recorded in the marker before it is made, so a
+    later run removes it after a kill and never a folder it did not make."""
+    import secrets
+
+    while True:
+        name = f"{TEMP_PREFIX}{secrets.token_hex(6)}"
+        if os.path.lexists(folder / name):
+            continue
+        _record_temporary(folder, name, add=True)
+        (folder / name).mkdir()
+        return folder / name
+
+
 def release(folder: OwnedFolder) -> None:
-    """Remove the marker :func:`take` wrote first, where no output was written since: a run
-    that failed on bad input leaves the folder as it found it (its cache aside, whose entries
-    are whole and let a corrected rerun resume)."""
+    """Remove the marker :func:`take` wrote first, where no output was written since and the
+    run made no cache in the folder: a run that failed on bad input before any work leaves the
+    folder as it found it. Where its cache exists the marker stays, naming it, so the corrected
+    rerun of the same command resumes from its whole entries."""
     marker = _marker(folder.path)
+    made = marker.get("cache")
+    if isinstance(made, str) and os.path.lexists(folder.path / made):
+        return
     if marker and not marker.get("files"):
         with contextlib.suppress(OSError):
             (folder.path / MARKER).unlink()
@@ -255,7 +296,7 @@ def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path
     them, then the commit renames them into place (``last`` after the others, replaced by the
     text ``incomplete`` while they are renamed) and records them in the marker."""
     take(folder)
-    tmp = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX, dir=folder.path))
+    tmp = _new_temporary(folder.path)
     try:
         write(tmp)
         _hook("written")
@@ -275,8 +316,10 @@ def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path
                           new[n]]
                 files[n] = list(dict.fromkeys(d for d in listed if d != "link"))
             files[last] = [*files[last], stub_digest]
+            temporaries = _temporaries(_marker(folder.path))
             _write_marker(folder.path, {"format": FORMAT, "files": files,
-                                        "cache": folder.cache, "state": "writing"})
+                                        "cache": folder.cache, "state": "writing",
+                                        "temporaries": temporaries})
             _hook("commit:marker")
             os.replace(stub, folder.path / last)
             _hook("commit:incomplete")
@@ -286,9 +329,13 @@ def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path
             done = {n: d for n, d in files.items() if n not in names} | {
                 n: [new[n]] for n in names}
             _write_marker(folder.path, {"format": FORMAT, "files": done,
-                                        "cache": folder.cache, "state": "complete"})
+                                        "cache": folder.cache, "state": "complete",
+                                        "temporaries": temporaries})
             folder.replaceable = {n: new[n] for n in names}
             folder.forced, folder.kept = [], []
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+        if not os.path.lexists(tmp):
+            with contextlib.suppress(OSError):
+                _record_temporary(folder.path, tmp.name, add=False)
     return [folder.path / n for n in names]

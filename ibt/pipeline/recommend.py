@@ -25,8 +25,10 @@ maximum of many noisy scores. Files are written by :mod:`ibt.pipeline.outputs`.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -41,6 +43,7 @@ from ibt.engine.ladder import Candidate, Ladder, Settings, eligible, run_ladder
 from ibt.engine.stages import Returns, bt_digest, held_out
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
+from ibt.signals import OverTime, Terminated, check_time, time_cap
 from ibt.tasks.task import Task
 
 __all__ = ["DEFAULT_KEEP", "LEAF_LIMITS", "RANDOM_SEED", "Budget", "Candidate", "Recommendation",
@@ -198,8 +201,12 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
     agent_key = {"algo": agent.algo, "expert_sha256": agent.digest}
     random_key = {"algo": "random", "policy": "uniform", "rng_seed": RANDOM_SEED}
     choice, confirm = held_out(cfg.final_episodes, 0), held_out(cfg.final_episodes, 1)
-    agent_choice = stages.returns_of(quiet, task, agent_key, lambda: agent.load().act, choice)
-    random_choice = stages.returns_of(quiet, task, random_key, agent.random_act, choice)
+    with within(deadline, "measuring the agent and the random policy"):
+        agent_choice = stages.returns_of(quiet, task, agent_key, checked(lambda: agent.load().act),
+                                         choice)
+        random_choice = stages.returns_of(quiet, task, random_key, checked(agent.random_act),
+                                          choice)
+    baselines = deadline.elapsed()  # the confirmation measures them again, and the BT
     warning = agent_lead(agent_choice, random_choice, task)
     settings = Settings(keep, tuple(sorted(set(leaf_limits))), seed, relational, restarts,
                         n_jobs, budget.scale, budget.refine_episodes, max_nodes,
@@ -219,15 +226,26 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
 
     lengths = agent_choice.lengths
     ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
-                        random_mean=random_choice.mean, deadline=deadline, on_step=on_step,
+                        random_mean=random_choice.mean,
+                        deadline=deadline.reserving(CONFIRMATION_RESERVE * baselines),
+                        on_step=on_step,
                         agent_length=sum(lengths) / len(lengths) if lengths else None)
     if warning:
         ladder.notes.insert(0, warning)
+    from ibt.distill.relational import MAX_PAIRED_FEATURES
+
+    if relational and len(task.feature_names) > MAX_PAIRED_FEATURES:
+        ladder.notes.append(
+            f"{task.name} has {len(task.feature_names):,} features: the relational trees "
+            f"test pairs among at most {MAX_PAIRED_FEATURES} of them (in distillation those an "
+            "axis-aligned tree on the same labels uses most; in the structure search the "
+            "first by index), so that memory grows linearly with the features")
     bar.close()
     elapsed = deadline.elapsed()
     if not ladder.candidates:
-        raise KeyboardInterrupt if ladder.stopped == "interrupted" else ValueError(
-            "no candidate was finished in the time given: raise --time")
+        if ladder.stopped in ("interrupted", "terminated"):
+            raise KeyboardInterrupt if ladder.stopped == "interrupted" else Terminated
+        raise ValueError("no candidate was finished in the time given: raise --time")
     chosen, met = choose(ladder.candidates, keep, max_nodes)
     bt = chosen.bt
     if task.continuous:
@@ -236,16 +254,53 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         bt_act: Any = lambda: CommandBTPolicy(task, bt).act  # noqa: E731
     else:
         bt_act = lambda: BTPolicy(task, bt).act  # noqa: E731
+    with within(deadline, "confirming the recommended BT"):
+        confirmed = (
+            stages.returns_of(quiet, task, agent_key, checked(lambda: agent.load().act), confirm),
+            stages.returns_of(quiet, task, {"bt": bt_digest(bt)}, checked(bt_act), confirm),
+            stages.returns_of(quiet, task, random_key, checked(agent.random_act), confirm))
     return Recommendation(
         task, agent.algo, Path(agent.source), agent.digest, keep, budget, settings.rungs, seed,
         cfg.final_episodes, ladder.candidates, chosen, met,
-        agent=stages.returns_of(quiet, task, agent_key, lambda: agent.load().act, confirm),
-        bt=stages.returns_of(quiet, task, {"bt": bt_digest(bt)}, bt_act, confirm),
-        random=stages.returns_of(quiet, task, random_key, agent.random_act, confirm),
+        agent=confirmed[0], bt=confirmed[1], random=confirmed[2],
         agent_choice=agent_choice.mean, random_choice=random_choice.mean,
         argv=list(argv or []), env_modules=tuple(env_modules), cache_dir=Path(cache_dir),
         ladder=ladder, time_limit=time_limit, elapsed=elapsed, max_nodes=max_nodes,
         restarts=restarts)
+
+
+#: the ladder's budget keeps back this many times the baselines' time for the confirmation (the
+#: agent and the random policy again, and the BT, on as many episodes)
+CONFIRMATION_RESERVE = 2.0
+
+
+@contextlib.contextmanager
+def within(deadline: Deadline, doing: str) -> Iterator[None]:
+    """The block ends by the deadline and its grace (:func:`ibt.signals.time_cap`), else a
+    ``ValueError`` saying what it was ``doing`` (every finished measurement is cached)."""
+    try:
+        with time_cap(deadline.left() + deadline.grace()):
+            yield
+    except OverTime:
+        raise ValueError(f"--time {deadline.seconds:.0f}s and its grace of "
+                         f"{deadline.grace():.0f} s ran out while {doing}: raise --time (every "
+                         "finished step is cached, so a rerun resumes)") from None
+
+
+def checked(make: Callable[[], Callable[..., Any]]) -> Callable[[], Callable[..., Any]]:
+    """A factory of ``make()``'s policy that first checks the run's time cap
+    (:func:`ibt.signals.check_time`): a policy acts between the environment's steps, where an
+    environment that swallows exceptions cannot hide the cap."""
+    def factory() -> Callable[..., Any]:
+        act = make()
+
+        def act_in_time(*args: Any) -> Any:
+            check_time()
+            return act(*args)
+
+        return act_in_time
+
+    return factory
 
 
 def as_facts(rec: Recommendation) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import pandas as pd
 
 from ibt.report.stats import MIN_SEEDS_FOR_CI, Results
+from ibt.report.text import md
 
 #: The paper's setup (Section IV.C, Implementation Details), against which deviations are listed
 PAPER_NET = "64x64"
@@ -19,8 +20,8 @@ PAPER_ITERATIONS = 50
 
 
 def _names(rows: pd.DataFrame) -> str:
-    return ", ".join(f"{t.split('-')[0]} {a.upper()}" for t, a in zip(rows.task, rows.algo,
-                                                                       strict=True))
+    return ", ".join(f"{md(t.split('-')[0])} {md(a.upper())}"
+                     for t, a in zip(rows.task, rows.algo, strict=True))
 
 
 def deviations_markdown(res: Results) -> str:
@@ -34,9 +35,10 @@ def deviations_markdown(res: Results) -> str:
     if experts is not None:
         nets = experts.net_arch.astype(str)
         big = experts[nets != PAPER_NET]
+        big_nets = ", ".join(map(md, sorted(set(big.net_arch.astype(str)))))
         items.append(f"**Expert networks.** The paper trains every agent with two hidden layers "
                      f"of 64 units; {len(experts) - len(big)} of our {len(experts)} experts use "
-                     f"that, {len(big)} use {', '.join(sorted(set(big.net_arch.astype(str))))} "
+                     f"that, {len(big)} use {big_nets} "
                      f"({_names(big)}), because 2x64 missed the quality bar or the "
                      "hyperparameter source uses the larger network.")
         steps = experts.timesteps.astype(int)
@@ -46,7 +48,7 @@ def deviations_markdown(res: Results) -> str:
                      f"({int((steps < PAPER_TIMESTEPS).sum())} of {len(steps)} fewer than "
                      f"{PAPER_TIMESTEPS:,}; {_names(experts[steps == steps.min()])} the fewest) "
                      "with tuned hyperparameters: "
-                     + ", ".join(f"{n} tuned here" if src == "ours" else f"{n} from {src}"
+                     + ", ".join(f"{n} tuned here" if src == "ours" else f"{n} from {md(src)}"
                                  for src, n in experts.hyperparams_source.astype(str)
                                  .str.split(" ").str[0].value_counts().items())
                      + " (the task catalogue, `ibt/tasks/builtin.py`; "
@@ -58,8 +60,8 @@ def deviations_markdown(res: Results) -> str:
                       .fillna("ok") != "ok"]
         if len(bad):
             items.append("**Experts left out of the claims.** "
-                         + "; ".join(f"{r.task} {r.algo.upper()}: {r.status} "
-                                     f"({r.status_evidence})" for r in bad.itertuples())
+                         + "; ".join(f"{md(r.task)} {md(r.algo.upper())}: {md(r.status)} "
+                                     f"({md(r.status_evidence)})" for r in bad.itertuples())
                          + ". Their cells stay in the tables, marked.")
     slow = {t: b.max_iterations for t, b in budgets.items() if b.max_iterations}
     items.append(f"**Iterations.** The paper runs {PAPER_ITERATIONS} interactive iterations; so "
@@ -76,14 +78,15 @@ def deviations_markdown(res: Results) -> str:
     scaled = {t: b.selection_scale for t, b in budgets.items() if b.selection_scale > 1}
     items.append("**Best-tree selection and evaluation.** The paper keeps \"the best performing "
                  "DT\" without saying how it is scored; we pick the highest mean return on 20 "
-                 "held-out episodes (" + ", ".join(f"{20 * s} on {t}" for t, s in scaled.items())
+                 "held-out episodes ("
+                 + ", ".join(f"{20 * s} on {md(t)}" for t, s in scaled.items())
                  + ") and report 100 fixed final episodes, disjoint from training and "
                  "selection.")
     grid = res.table("distillation")
     if grid is not None and {"task", "expert", "method", "seed"} <= set(grid.columns):
         seeds = grid.groupby(["task", "expert", "method"]).seed.nunique()
         per_task = seeds.groupby(level="task").agg(["min", "max"])
-        text = ", ".join(f"{t} {lo}" + (f"-{hi}" if hi != lo else "")
+        text = ", ".join(f"{md(t)} {lo}" + (f"-{hi}" if hi != lo else "")
                          for t, (lo, hi) in per_task.iterrows())
         items.append(f"**Seeds.** The paper does not say how many runs each bar averages; ours "
                      f"average {text} seeds per cell. Intervals are named for what they are: "

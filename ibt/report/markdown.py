@@ -36,6 +36,7 @@ from ibt.report.tables import (
     status_footnotes,
     timings_markdown,
 )
+from ibt.report.text import md, md_url
 
 README_BEGIN = "<!-- results:begin (written by notebooks/09_report.ipynb) -->"
 README_END = "<!-- results:end -->"
@@ -152,7 +153,7 @@ def _which(rows: pd.DataFrame) -> str:
         if r.what == "best at the published size":
             said.append(f"best with <= {r.anchor_leaves:.0f} leaves")
         else:
-            said.append(_WHICH.get(r.what, str(r.what)))
+            said.append(_WHICH.get(r.what, md(r.what)))
     return " and ".join(said)
 
 
@@ -166,17 +167,17 @@ def front_page_markdown(headline: pd.DataFrame) -> str:
              "|---|---|---|---|---|---|---|---|"]
     for (task, _), rows in headline.groupby(["task", "name"], sort=False):
         r = rows.iloc[0]
-        folder = Path(str(r.png_file)).parent.as_posix()
+        folder = md_url(Path(str(r.png_file)).parent.as_posix())
         share = f"{100 * r.share_200:.1f} %" if pd.notna(r.share_200) else "n/a"
-        anchor = (f"{r.anchor}: {r.anchor_leaves:.0f}, {r.anchor_return:.1f} "
+        anchor = (f"{md(r.anchor)}: {r.anchor_leaves:.0f}, {r.anchor_return:.1f} "
                   f"({r.anchor_retention:.1f} %)" if pd.notna(r.anchor_return) else "none")
         paper = (f"{r.paper_method_nodes:.0f}, {r.paper_method_retention:.1f} %"
                  if pd.notna(r.paper_method_nodes) else "not in the paper")
         if pd.notna(r.paper_bt_nodes):
             paper += f" (the paper's own BT: {r.paper_bt_nodes:.0f} nodes)"
         lines.append(
-            f"| {task} ({str(r.expert).upper()}) | {_which(rows)}: [`{r.method}`]({folder}/) "
-            f"([drawing]({r.png_file}), [GIF]({r.gif_file})) | "
+            f"| {md(task)} ({md(str(r.expert).upper())}) | {_which(rows)}: [`{md(r.method)}`]"
+            f"({folder}/) ([drawing]({md_url(r.png_file)}), [GIF]({md_url(r.gif_file)})) | "
             f"{int(r.bt_nodes)} ({int(r.tree_leaves)}) | {r.mean_return:.1f} +- "
             f"{r.std_return:.1f} ({int(r.episodes):,}) | {share} | "
             f"{r.retention_norm:.1f} % | {anchor} | {paper} |")

@@ -29,6 +29,7 @@ from ibt.report.stats import (
     retention_table,
     with_expert_status,
 )
+from ibt.report.text import md
 
 METHODS = (*TREE_METHODS, "bt-espresso", "re-bt-espresso")
 STATUS_MARKS = {"excluded": "‡", "constant-action": "†"}
@@ -56,7 +57,7 @@ def format_cell(values: Sequence[float]) -> str:
 
 def _expert_label(expert: str, status: str) -> str:
     mark = STATUS_MARKS.get(status, "")
-    return f"{expert} {mark}" if mark else expert
+    return f"{md(expert)} {mark}" if mark else md(expert)
 
 
 def status_footnotes(res: Results, shown: pd.DataFrame | None = None) -> str:
@@ -67,7 +68,8 @@ def status_footnotes(res: Results, shown: pd.DataFrame | None = None) -> str:
         if status == "ok" or (pairs is not None and (task, algo) not in pairs):
             continue
         what = "excluded" if status == "excluded" else "constant-action expert"
-        lines.append(f"{STATUS_MARKS.get(status, '')} {task} {algo}: {what} ({evidence}); "
+        lines.append(f"{STATUS_MARKS.get(status, '')} {md(task)} {md(algo)}: {what} "
+                     f"({md(evidence)}); "
                      "its cells stay in the tables and count in no claim.")
     return "\n".join(f"- {line}" for line in lines)
 
@@ -93,7 +95,7 @@ def retention_markdown(res: Results, value: str = "retention_norm") -> str:
     for (task, expert), part in rows.groupby(["task", "expert"], sort=False):
         cells = [format_cell(part[part.method == m][value].dropna().to_numpy()) for m in present]
         label = _expert_label(expert, part.expert_status.iloc[0])
-        lines.append(f"| {task} | {label} | " + " | ".join(cells) + " |")
+        lines.append(f"| {md(task)} | {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -112,7 +114,7 @@ def nodes_markdown(res: Results) -> str:
              "|---|---|" + "---|" * len(present)]
     for (task, expert), row in table.iterrows():
         label = _expert_label(expert, status.get((task, expert), ("ok", ""))[0])
-        lines.append(f"| {task} | {label} | " + " | ".join(_fmt(row[m], 1) for m in present)
+        lines.append(f"| {md(task)} | {label} | " + " | ".join(_fmt(row[m], 1) for m in present)
                      + " |")
     return "\n".join(lines)
 
@@ -134,7 +136,7 @@ def headline_markdown(res: Results) -> str:
                           else "" for m in ("imitation-bt", "re-bt-espresso"))
         expert_return = (_fmt(float(part.expert_return.iloc[0]))
                          if "expert_return" in part else "")
-        lines.append(f"| {task} | {_expert_label(expert, part.expert_status.iloc[0])} | "
+        lines.append(f"| {md(task)} | {_expert_label(expert, part.expert_status.iloc[0])} | "
                      f"{expert_return} | {format_cell(bc.retention_norm.to_numpy())} | "
                      f"{format_cell(ours.retention_norm.to_numpy())} | {nodes[0]} | "
                      f"{nodes[1]} |")
@@ -173,7 +175,7 @@ def experts_markdown(res: Results) -> str:
     for r in experts.itertuples():
         status = getattr(r, "status", "ok")
         status = status if isinstance(status, str) and status else "ok"
-        lines.append(f"| {r.task} | {r.algo} | {r.net_arch} | {int(r.timesteps):,} | "
+        lines.append(f"| {md(r.task)} | {md(r.algo)} | {md(r.net_arch)} | {int(r.timesteps):,} | "
                      f"{r.mean_return:.1f} | {'yes' if bool(r.meets_bar) else 'no'} | "
                      f"{_expert_label(status, status)} |")
     return "\n".join(lines)
@@ -199,13 +201,13 @@ def timings_markdown(res: Results, with_record: bool = False) -> str:
             continue
         seconds = table.get("wall_seconds", pd.Series([0.0])).sum()
         lines.append(f"| {label} | {len(table)} | {seconds / 3600:.1f} h | "
-                     f"machine: {res.manifest(name).get('machine', '?')} |")
+                     f"machine: {md(res.manifest(name).get('machine', '?'))} |")
     figures = res.results_dir / "make_figures.json"
     if figures.exists() and with_record:
         facts = json.loads(figures.read_text())
         lines.append(f"| `make figures`, last run (venv ready) | 1 | "
                      f"{facts['seconds']:.0f} s wall | "
-                     f"{facts.get('machine', '')}, {facts.get('date', '')} |")
+                     f"{md(facts.get('machine', ''))}, {md(facts.get('date', ''))} |")
     elif figures.exists():  # a number here would change this file on every run
         lines.append("| `make figures` (venv ready) | 1 | wall time of the last run: "
                      "`data/results/make_figures.json` | written at the end of each run |")

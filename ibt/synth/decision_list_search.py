@@ -218,7 +218,9 @@ class CandidateSearch:
 
     def _beam_orders(self, paths: list[Entry], context: Term, actions: tuple[int, ...]
                      ) -> list[tuple[int, ...]]:
-        """Complete orders from a beam over prefixes scored by their rules' flat size."""
+        """Complete orders from a beam over prefixes scored by their rules' flat size: at most
+        ``2 * BEAM_WIDTH`` (the last two actions both ways round each prefix kept), none where
+        the work budget runs out first (not every order of the actions left: n! of them)."""
         beam: list[tuple[int, ...]] = [()]
         for _ in range(len(actions) - 2):
             scored = []
@@ -231,8 +233,8 @@ class CandidateSearch:
                     entries = self.espresso_list(paths, context, (*order, rest[0]))
                     if entries is not None:
                         scored.append((_flat_size(entries[:-1]), order))
-            if not scored:
-                break
+            if not scored:  # the work budget is spent: no order of these can be finished
+                return []  # (the first completed order would fail where these did)
             beam = [order for _, order in sorted(scored)[:BEAM_WIDTH]]
         orders = []
         for prefix in beam:
