@@ -219,3 +219,39 @@ def update_readme(readme: str | Path, block: str, begin: str = README_BEGIN,
     if new != text:
         atomic_write_text(path, new)
     return new != text
+
+
+CONTROLLERS_BEGIN = "<!-- controllers:begin (written by notebooks/11_controllers.ipynb) -->"
+CONTROLLERS_END = "<!-- controllers:end -->"
+
+
+def controllers_markdown(targets: pd.DataFrame, table: pd.DataFrame) -> str:
+    """The controllers study in one table: per task, our best BT within the bar's size and the
+    mean over seeds, beside the reference controller measured on the same episodes, and
+    whether the bar is cleared (``targets``: :func:`ibt.runs.controllers.targets_table`;
+    ``table``: ``controllers.csv``)."""
+    refs = table[table.source.notna()]  # the reference controllers name their source
+    lines = ["| task | bar (set before the runs) | our best BT: rules, nodes, return | our mean "
+             "over seeds (lowest) | reference controller, same episodes: rules, return | "
+             "bar cleared |", "|---|---|---|---|---|---|"]
+    for row in targets.itertuples():
+        ref = refs[refs.task == row.task].sort_values("mean_return").tail(1)
+        reference = (f"{md(ref.learner.iloc[0])}: {int(ref.rules.iloc[0])}, "
+                     f"{ref.mean_return.iloc[0]:.1f}" if len(ref) else "none runnable")
+        best = ("none within the size" if pd.isna(row.best_run) else
+                f"{int(row.best_run_rules)}, {int(row.best_run_bt_nodes)}, {row.best_run:.1f}")
+        mean = ("n/a" if pd.isna(row.mean_of_seeds) else
+                f"{row.mean_of_seeds:.1f} ({row.lowest_seed:.1f}; {int(row.seeds)} seeds)")
+        cleared = ("by the mean" if row.mean_clears else
+                   "by the best seed only" if row.best_run_clears else "no")
+        lines.append(f"| {md(row.task)} | >= {row.bar:g} with <= {int(row.max_rules)} rules, "
+                     f"<= {int(row.max_bt_nodes)} nodes | {best} | {mean} | {reference} | "
+                     f"{cleared} |")
+    return "\n".join(lines)
+
+
+def controllers_block(targets: pd.DataFrame, table: pd.DataFrame) -> str:
+    """The README's generated controllers block (between :data:`CONTROLLERS_BEGIN` and
+    :data:`CONTROLLERS_END`)."""
+    return "\n".join([CONTROLLERS_BEGIN, "", controllers_markdown(targets, table), "",
+                      CONTROLLERS_END])

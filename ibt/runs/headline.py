@@ -80,11 +80,31 @@ def candidates(results: Path) -> pd.DataFrame:
                                    method=part.method.where(~part.refined,
                                                             part.method + ", refined")))
     table = pd.concat([front, protocol, searched, *box], ignore_index=True)
+    steering = _controller_rows(results, table)
+    if steering is not None:
+        table = pd.concat([table, steering], ignore_index=True)
     table["retention_norm"] = retention_norm_column(table.mean_return, table.expert_return,
                                              table.random_return)
     # the share of episodes >= 200 is LunarLander's "solved" landing; elsewhere it means nothing
     table.loc[~table.task.str.startswith("LunarLander"), "share_200"] = np.nan
     return table
+
+
+def _controller_rows(results: Path, runs: pd.DataFrame) -> pd.DataFrame | None:
+    """The controllers study's BTs (``controllers.csv``: linear commands, tests of up to four
+    features) as candidates, on their agents' returns as the other runs have them."""
+    from ibt.runs.controllers import OURS
+
+    if not (results / "controllers.csv").exists():
+        return None
+    study = pd.read_csv(results / "controllers.csv")
+    study = study[study.learner.isin(OURS)]
+    agents = runs.drop_duplicates(["task", "expert"])[["task", "expert", "expert_return",
+                                                       "random_return"]]
+    study = study.rename(columns={"agent": "expert"}).merge(agents, on=["task", "expert"])
+    return study.assign(method=study.learner + " BT", tree_leaves=study.rules,
+                        leaf_limit=study.leaves_limit, share_200=study.share_at_200,
+                        source="controllers.csv")
 
 
 def select(table: pd.DataFrame, tasks: list[str], published: pd.DataFrame) -> pd.DataFrame:
@@ -162,6 +182,10 @@ def bt_of(cfg: Config, row: Any) -> BehaviorTree:
 
     task = get_task(row.task)
     seed, limit = int(row.seed), int(row.leaf_limit)
+    if row.source == "controllers.csv":
+        from ibt.runs.controllers import controller_bt
+
+        return controller_bt(cfg, task, row.expert, limit, seed)
     if str(row.source).startswith("continuous"):
         method, _, refined = str(row.method).partition(", ")
         return continuous.point_bt(cfg, continuous.BoxPoint(row.task, row.expert, method, seed,
