@@ -9,7 +9,7 @@ export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 
 .DEFAULT_GOAL := help
-.PHONY: bench-pipeline help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book
+.PHONY: bench-pipeline help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book verify
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -57,6 +57,10 @@ smoke: setup ## run every notebook under the smoke profile into build/smoke (sec
 	@set -e; for nb in $(NOTEBOOKS); do \
 		IBT_PROFILE=smoke $(BIN)/papermill --no-progress-bar --cwd notebooks $$nb build/smoke/$$(basename $$nb); \
 	done
+
+verify: setup ## check every headline and verdict number against paper/claims.csv: OK or the difference (SMOKE=1: a few rows)
+	@start=$$(date +%s); $(BIN)/python -m ibt.check_claims $(if $(SMOKE),--smoke) && \
+	echo "make verify: $$(( $$(date +%s) - start )) s"
 
 book: setup ## the HTML book (notebooks with their committed outputs, report, formats, CLI, API), offline
 	@start=$$(date +%s); $(BIN)/sphinx-build -q -W --keep-going -b html -c docs/book \

@@ -67,16 +67,97 @@ def test_root_selector_guards_every_action(method):
     assert [rs.action for rs in result.rule_sets] == actions
 
 
-@pytest.mark.parametrize("method", sorted(BASELINES))
-def test_only_le_conditions_negation_by_inverter(method):
+def test_bt_espresso_negates_inside_the_condition():
+    """As its authors' code: a negated literal is the one condition ``x > t``, no Inverter."""
     tree, _ = fit_tree(leaves=20, n_actions=3, seed=11)
-    bt = BASELINES[method](tree, TOY).bt
+    bt = bt_espresso(tree, TOY).bt
+    assert {c.op for c in _literals(bt)} == {"<=", ">"}
+    assert not any(isinstance(n, Inverter) for n in bt.nodes())
+    _assert_no_single_child_composites(bt)
+
+
+def test_re_bt_espresso_negates_by_inverter():
+    """As its authors' code: only ``<=`` conditions; a negated literal is an Inverter."""
+    tree, _ = fit_tree(leaves=20, n_actions=3, seed=11)
+    bt = re_bt_espresso(tree, TOY).bt
     assert {c.op for c in _literals(bt)} == {"<="}
     assert any(isinstance(n, Inverter) for n in bt.nodes())
-    # no single-child composites, as in the reference implementations
+    _assert_no_single_child_composites(bt)
+
+
+def _assert_no_single_child_composites(bt) -> None:
+    """As in the reference implementations, no Sequence or Fallback has a single child."""
     for node in bt.nodes():
         if isinstance(node, Sequence | Fallback):
             assert len(node.children) >= 2
+
+
+def _authors_node_count(tree: DecisionTreeClassifier) -> int:
+    """BT-Espresso's size by its authors' construction (``fnivek/bt-espresso``, ``lfd``).
+
+    Their rule, restated: one boolean variable per internal node; each action's leaf paths
+    are OR-ed and, when the action has more than one path, minimised by pyeda's
+    ``espresso_exprs``; a Parallel root holds, per action, ``Sequence(literals..., action)`` for
+    one product term, else ``Sequence(Fallback(terms...), action)`` where a one-literal term is
+    a bare condition and a longer one a Sequence; a literal, negated or not, is one condition.
+    """
+    from pyeda.inter import And, Not, Or, espresso_exprs, exprvar
+
+    t = tree.tree_
+    paths: dict[int, list[list[tuple[int, bool]]]] = {}
+    stack: list[tuple[int, list[tuple[int, bool]]]] = [(0, [])]
+    while stack:
+        node, path = stack.pop()
+        if t.children_left[node] == t.children_right[node]:
+            action = int(tree.classes_[int(np.argmax(t.value[node][0]))])
+            paths.setdefault(action, []).append(path)
+            continue
+        stack.append((t.children_left[node], [*path, (node, True)]))
+        stack.append((t.children_right[node], [*path, (node, False)]))
+    variables = {i: exprvar(f"a{i}") for i in _internal(tree)}
+    count = 1  # the root
+    for action_paths in paths.values():
+        if len(action_paths) == 1:
+            term_sizes = [len(action_paths[0])]
+        else:
+            sop = Or(*[And(*[variables[i] if le else Not(variables[i]) for i, le in path])
+                       for path in action_paths]).to_dnf()
+            (minimised,) = espresso_exprs(sop)
+            terms = minimised.xs if minimised.ASTOP == "or" else (minimised,)
+            term_sizes = [len(term.xs) if term.ASTOP == "and" else 1 for term in terms]
+        if len(term_sizes) == 1:
+            count += term_sizes[0] + 2  # Sequence(literals..., action)
+        else:  # Sequence(Fallback(terms...), action)
+            count += 3 + sum(1 if size == 1 else size + 1 for size in term_sizes)
+    return count
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_bt_espresso_size_equals_its_authors_construction(seed):
+    tree, _ = fit_tree(leaves=6 + 5 * seed, n_actions=2 + seed % 3, seed=seed, n=600)
+    assert bt_espresso(tree, TOY).bt.node_count == _authors_node_count(tree)
+
+
+# The committed seed-best BC trees the BT-Espresso baseline is built from, and its size by the
+# authors' rule (an Inverter over ``x <= t`` for each negated literal gave 68 and 313 nodes).
+COMMITTED = [("CartPole-v1", "dqn", 3, 52), ("LunarLander-v3", "dqn", 0, 235)]
+
+
+@pytest.mark.parametrize(("task", "algo", "seed", "authors_nodes"), COMMITTED)
+def test_committed_trees_match_the_authors_node_counts(task, algo, seed, authors_nodes):
+    import ibt
+    from ibt.bt.model import BehaviorTree
+    from ibt.paths import DATA_DIR
+    from ibt.tasks.catalogue import get_task
+
+    cfg = ibt.config("paper", progress=False)  # a cache hit on the committed data/cache
+    tree = ibt.distill_cached(cfg, task, algo, "bc", seed).best_tree
+    assert _authors_node_count(tree) == authors_nodes
+    bt = bt_espresso(tree, get_task(task)).bt
+    assert bt.node_count == authors_nodes
+    committed = BehaviorTree.from_json(
+        (DATA_DIR / "trees" / task / algo / "bt-espresso.json").read_bytes())
+    assert committed.node_count == authors_nodes
 
 
 @settings(max_examples=30, deadline=None)
@@ -193,11 +274,13 @@ def test_re_bt_espresso_merges_thresholds_within_terms():
                 assert len(keys) == len(set(keys))
 
 
-def test_node_count_ordering_on_typical_trees():
+def test_imitation_bt_is_smallest_on_typical_trees():
     rng = np.random.default_rng(2024)
     for seed in range(20):
         leaves = int(rng.integers(8, 33))
         tree, _ = fit_tree(leaves=leaves, n_actions=int(rng.integers(2, 5)), seed=seed, n=800)
-        counts = [f(tree, TOY, check=False).bt.node_count
-                  for f in (imitation_bt, re_bt_espresso, bt_espresso)]
-        assert counts == sorted(counts), (seed, leaves, counts)
+        ours, *baselines = [f(tree, TOY, check=False).bt.node_count
+                            for f in (imitation_bt, re_bt_espresso, bt_espresso)]
+        # RE:BT-Espresso's Inverters can outweigh what its factoring saves over BT-Espresso's
+        # in-condition negation, so the two baselines are not ordered; Imitation-BT is smallest
+        assert ours <= min(baselines), (seed, leaves, ours, baselines)

@@ -67,7 +67,7 @@ CODE_VERSIONS: dict[str, int] = {
     "expert-eval": 1,  # ibt.runs.grid.expert_evaluation
     "tree-eval": 1,  # ibt.runs.grid.evaluate_tree
     "bt-eval": 1,  # ibt.runs.grid.evaluate_bt
-    "synthesis": 1,  # ibt.engine.synthesis.synthesised: synthesis, verification, the row
+    "synthesis": 2,  # ibt.engine.synthesis.synthesised: synthesis, verification, the row
     "refine": 3,  # ibt.runs.front.refine_cached: ibt.refine.by_return.refine of a distilled tree
     "front-bt": 1,  # ibt.runs.front.bt_sizes: every synthesiser's verified BT of one tree
     "executors": 1,  # ibt.runs.grid.executors_agree

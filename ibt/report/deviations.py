@@ -108,7 +108,11 @@ def deviations_markdown(res: Results) -> str:
     items.append("**Baselines.** BT-Espresso and RE:BT-Espresso are rebuilt from their papers "
                  "and fed the BC tree of the same grid (offline demonstrations, as in their "
                  "papers); the BTs they produce decide exactly as that tree (verified), so their "
-                 "retention is the BC tree's. The paper's DAgger schedule p is not given; ours "
+                 "retention is the BC tree's. Each is laid out as its authors' code lays it out "
+                 "(a Selector root where theirs is a Parallel, which decides alike): BT-Espresso "
+                 "writes a negated test as one condition `x > t`, RE:BT-Espresso as an inverter "
+                 "over `x <= t`, and every method's nodes are counted by one rule, every node of "
+                 "the BT as written. The paper's DAgger schedule p is not given; ours "
                  "is 0.5, and our BC aggregates expert-only rollouts with the same label budget "
                  "as the interactive methods.")
     return "\n".join(f"- {item}" for item in items)

@@ -290,7 +290,9 @@ def node_counts(frame: pd.DataFrame, path: str | Path | None = None) -> plt.Figu
     fig.legend(handles, labels, ncol=min(4, len(methods)), loc="lower center",
                bbox_to_anchor=(0.5, 1.0), frameon=False)
     fig.text(0.5, 0.0, wrap_text("Mean over seeds: decision-tree nodes for BC, DAgger and VIPER; "
-                                 "BT nodes (every node) for the BT methods. BT-Espresso and "
+                                 "BT nodes (every node of the BT as its method's authors write "
+                                 "it: BT-Espresso negates inside a condition, RE:BT-Espresso by "
+                                 "an inverter) for the BT methods. BT-Espresso and "
                                  "RE:BT-Espresso are built from the BC tree.", 110),
              ha="center", va="top", fontsize=9)
     fig.tight_layout()

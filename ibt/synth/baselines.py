@@ -8,7 +8,8 @@ guard, which is the main reason their trees are larger than Imitation-BT's.
 * :func:`bt_espresso` (French et al., "Learning Behavior Trees From Demonstration", ICRA 2019):
   one boolean symbol per *internal node* of the tree, with no de-duplication (two nodes testing
   the same ``x <= t`` are two symbols; they are logically the same test, but Espresso does not
-  know it). Conditions are the tree's tests ``x <= t``; a negated symbol is an ``Inverter``.
+  know it). A symbol is a condition ``x <= t`` and its negation the single condition ``x > t``,
+  as the authors' code writes it (one condition node with a negation flag, no ``Inverter``).
 * :func:`re_bt_espresso` (Wathieu et al., "RE:BT-Espresso: Improving Interpretability and
   Expressivity of Behavior Trees Learned from Robot Demonstrations", ICRA 2022): symbols
   de-duplicated on ``(feature, threshold rounded to 3 decimals)``, Espresso, then *float
@@ -16,7 +17,12 @@ guard, which is the main reason their trees are larger than Imitation-BT's.
   :func:`ibt.synth.rules.merge_thresholds`) and *factoring* of the literals common to every term of
   an
   action: ``(A and B) or (A and C)`` becomes ``Sequence(A, Fallback(B, C), action)``. Only
-  ``<=`` conditions appear; ``x > t`` is ``Inverter(x <= t)``.
+  ``<=`` conditions appear; ``x > t`` is ``Inverter(x <= t)``, as in its authors' code.
+
+**Node counting.** Every method's size is :attr:`ibt.bt.model.BehaviorTree.node_count`: every
+node of the BT as written counts one (root, composites, inverters, conditions, actions); each
+method is written as its authors' code writes it, so an ``Inverter`` counts where that code
+has one (RE:BT-Espresso) and not where it negates inside the condition (BT-Espresso).
 
 Reference implementations read (for their design; no code was copied):
 ``fnivek/bt-espresso`` (``lfd/src/lfd/dt_to_bt.py``, ``dt_to_bt_espresso.py``) and
@@ -50,6 +56,7 @@ Design choices, and where they depart from that code:
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -171,28 +178,37 @@ def _literal(symbol: Symbol, le: bool) -> Literal:
     return Literal(symbol.feature, symbol.threshold, le)
 
 
-def _node(lit: Literal) -> Node:
-    """A ``<=`` condition, or the inverter of one for ``>`` (the baselines' only condition)."""
+LiteralWriter = Callable[[Literal], Node]
+
+
+def negated_condition(lit: Literal) -> Node:
+    """BT-Espresso's literal: ``x <= t``, or its negation as the one condition ``x > t``."""
+    return Condition(lit.feature, "<=" if lit.le else ">", lit.threshold)
+
+
+def inverted_condition(lit: Literal) -> Node:
+    """RE:BT-Espresso's literal: ``x <= t``, or ``Inverter(x <= t)`` for its negation."""
     condition = Condition(lit.feature, "<=", lit.threshold)
     return condition if lit.le else Inverter(condition)
 
 
-def _term_node(term: Term) -> Node:
+def _term_node(term: Term, write: LiteralWriter) -> Node:
     if len(term) == 1:
-        return _node(term[0])
-    return Sequence(tuple(_node(lit) for lit in term))
+        return write(term[0])
+    return Sequence(tuple(write(lit) for lit in term))
 
 
-def _guard(common: Term, terms: list[Term], action: int) -> Node:
+def _guard(common: Term, terms: list[Term], action: int, write: LiteralWriter) -> Node:
     """``Sequence(common..., Fallback(terms) or the one term's literals, action)``.
 
-    An always-true guard (no literals at all) leaves the bare action.
+    ``write`` turns a literal into its node. An always-true guard (no literals at all) leaves
+    the bare action.
     """
-    children: list[Node] = [_node(lit) for lit in common]
+    children: list[Node] = [write(lit) for lit in common]
     if len(terms) == 1:
-        children += [_node(lit) for lit in terms[0]]
+        children += [write(lit) for lit in terms[0]]
     elif terms:
-        children.append(Fallback(tuple(_term_node(t) for t in terms)))
+        children.append(Fallback(tuple(_term_node(t, write) for t in terms)))
     if not children:
         return Action(action)
     return Sequence((*children, Action(action)))
@@ -228,7 +244,7 @@ def bt_espresso(tree: DecisionTreeClassifier, task: Task, *, check: bool = True)
         return relational.synthesise(bt_espresso, tree, task, check=check)
     rule_sets = [RuleSet(action, tuple(terms))
                  for action, terms in _symbolic_rule_sets(tree, bt_espresso_symbols(tree))]
-    guards = [_guard((), list(rs.terms), rs.action) for rs in rule_sets]
+    guards = [_guard((), list(rs.terms), rs.action, negated_condition) for rs in rule_sets]
     return _finish(Selector(tuple(guards)), "bt-espresso", rule_sets, tree, task, check)
 
 
@@ -262,5 +278,6 @@ def re_bt_espresso(tree: DecisionTreeClassifier, task: Task, *, check: bool = Tr
         return relational.synthesise(re_bt_espresso, tree, task, check=check)
     rule_sets = [RuleSet(action, tuple(dict.fromkeys(merge_thresholds(t) for t in terms)))
                  for action, terms in _symbolic_rule_sets(tree, re_bt_espresso_symbols(tree))]
-    guards = [_guard(*factor_common(list(rs.terms)), rs.action) for rs in rule_sets]
+    guards = [_guard(*factor_common(list(rs.terms)), rs.action, inverted_condition)
+              for rs in rule_sets]
     return _finish(Selector(tuple(guards)), "re-bt-espresso", rule_sets, tree, task, check)
