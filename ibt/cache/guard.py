@@ -36,8 +36,12 @@ RECORD = DATA_DIR / "cache" / "code_hashes.json"
 _ROLLOUT = ("evaluate/rollouts.py", "evaluate/policies.py", "tasks/task.py", "tasks/builtin.py",
             "tasks/settings.py", "envs/package_delivery.py", "envs/__init__.py")
 _TREES = ("refine/tree_arrays.py", "distill/loop.py")
-_ENGINE = ("engine/stages.py", "engine/synthesis.py", "engine/agent.py",  # keys, agents,
-           "engine/budgets.py")  # budgets
+#: the engine's modules every stage shares: identities, the agent, the budgets
+_ENGINE = ("engine/keys.py", "engine/agent.py", "engine/budgets.py")
+_DISTIL = ("engine/distil.py", *_ENGINE)
+_REFINE = ("engine/refine.py", *_ENGINE)
+_SEARCH = ("engine/search.py", "engine/refine.py", "engine/measure.py", *_ENGINE)
+_MEASURE = ("engine/measure.py", "engine/synthesis.py", *_ENGINE)
 _AGENTS = ("experts/expert.py", "experts/checkpoint.py", "experts/callable_agent.py")
 _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decision_list.py",
           "synth/decision_list_search.py", "synth/decision_list_exact.py",
@@ -47,41 +51,42 @@ _SYNTH = ("synth/rules.py", "synth/logic.py", "synth/imitation.py", "synth/decis
 #: The modules (relative to the package) whose code decides each cache kind's results.
 KIND_SOURCES: dict[str, tuple[str, ...]] = {
     "distill": ("distill/loop.py", "distill/schedules.py", *_AGENTS, "runs/steps.py",
-                *_ENGINE, *_ROLLOUT),
+                *_DISTIL, *_ROLLOUT),
     "expert-eval": (*_AGENTS, "runs/grid.py", *_ENGINE, *_ROLLOUT),
     "tree-eval": ("runs/grid.py", *_ENGINE, *_TREES, *_ROLLOUT),
     "bt-eval": ("runs/grid.py", *_ENGINE, "bt/model.py", "bt/document.py", "bt/executors.py",
                 *_ROLLOUT),
-    "synthesis": ("runs/grid.py", *_ENGINE, *_TREES, *_SYNTH),
-    "refine": ("refine/by_return.py", "runs/front.py", *_ENGINE, *_TREES, *_ROLLOUT),
+    "synthesis": ("runs/grid.py", "engine/synthesis.py", *_ENGINE, *_TREES, *_SYNTH),
+    "refine": ("refine/by_return.py", "runs/front.py", *_REFINE, *_TREES, *_ROLLOUT),
     "front-bt": ("runs/front.py", *_TREES, *_SYNTH),
     "executors": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
     "evolve": ("refine/structure.py", "refine/structure_mutations.py", "refine/forest.py",
-               "runs/search.py", *_AGENTS, *_ENGINE, *_TREES, *_ROLLOUT),
+               "runs/search.py", *_AGENTS, *_SEARCH, *_TREES, *_ROLLOUT),
     "protocol": ("runs/search.py", "bt/model.py", "bt/document.py", "bt/executors.py",
                  *_ROLLOUT),
     "speed": ("runs/grid.py", "evaluate/speed.py", *_TREES, *_SYNTH),
-    "box-distill": ("distill/continuous.py", "runs/continuous.py", *_AGENTS, *_ENGINE,
+    "box-distill": ("distill/continuous.py", "runs/continuous.py", *_AGENTS, *_DISTIL,
                     *_ROLLOUT),
     "box-commands": ("synth/commands.py", "distill/continuous.py", "runs/continuous.py",
-                     *_AGENTS, "experts/training.py", *_ENGINE, *_ROLLOUT),
+                     *_AGENTS, "experts/training.py", "engine/commands.py", *_ENGINE,
+                     *_ROLLOUT),
     "box-refine": ("refine/commands.py", "refine/by_return.py", "runs/continuous.py",
-                   "runs/front.py", *_ENGINE, *_TREES, *_ROLLOUT),
-    "box-eval": ("runs/continuous.py", *_ENGINE, "synth/commands.py", "refine/commands.py", *_TREES,
-                 *_SYNTH, *_ROLLOUT),
+                   "runs/front.py", *_REFINE, *_TREES, *_ROLLOUT),
+    "box-eval": ("runs/continuous.py", "engine/synthesis.py", *_ENGINE, "synth/commands.py",
+                 "refine/commands.py", *_TREES, *_SYNTH, *_ROLLOUT),
     "distill-rel": ("distill/relational.py", "bt/linear.py", "distill/loop.py",
                     "distill/schedules.py", *_AGENTS, "runs/relational.py",
-                    "runs/steps.py", *_ENGINE, *_ROLLOUT),
+                    "runs/steps.py", *_DISTIL, *_ROLLOUT),
     "refine-rel": ("refine/relational.py", "refine/by_return.py", "distill/relational.py",
                    "bt/linear.py", "runs/relational.py", "runs/front.py",
                    "runs/relational_search.py", "refine/relational_structure.py",
                    "refine/structure.py", "refine/structure_mutations.py", "refine/forest.py",
-                   *_ENGINE, *_TREES, *_ROLLOUT),
+                   *_REFINE, *_TREES, *_ROLLOUT),
     "evolve-rel": ("refine/relational_structure.py", "refine/relational.py",
                    "refine/structure.py", "refine/structure_mutations.py", "refine/forest.py",
                    "distill/relational.py", "bt/linear.py", "runs/relational_search.py",
-                   "runs/search.py", *_AGENTS, *_ENGINE, *_TREES, *_ROLLOUT),
-    "returns": ("engine/stages.py", *_AGENTS, "experts/training.py", *_TREES, *_SYNTH,
+                   "runs/search.py", *_AGENTS, *_SEARCH, *_TREES, *_ROLLOUT),
+    "returns": (*_MEASURE, *_AGENTS, "experts/training.py", *_TREES, *_SYNTH,
                 "synth/commands.py", *_ROLLOUT),
     "evolve-select": ("refine/relational_structure.py", "refine/relational.py",
                       "refine/structure.py", "refine/structure_mutations.py",

@@ -55,10 +55,12 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
-from ibt.engine import budgets, polish, stages, synthesis
+from ibt.engine import budgets, distil, measure, polish, refine, search, synthesis
 from ibt.engine.agent import Agent
 from ibt.engine.deadline import PACE_EPISODES, Deadline, Pace
+from ibt.engine.keys import leaves_of, tree_key
 from ibt.engine.parallel import parallel_map
+from ibt.engine.search import SearchInfo
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
 from ibt.signals import STOP_SIGNALS, OverTime, stop_reason, time_cap
@@ -76,7 +78,7 @@ class Candidate:
     std_return: float
     retention: float  # random-normalised, %, on the choice episodes
     relational: bool = False  # the tree may test w1 * x_i + w2 * x_j
-    search: stages.SearchInfo | None = None  # how a searched tree's restart was chosen
+    search: SearchInfo | None = None  # how a searched tree's restart was chosen
 
     @property
     def label(self) -> str:
@@ -89,7 +91,7 @@ class Candidate:
 
     @property
     def bt_method(self) -> str:
-        return stages.smallest_bt(self.bts)
+        return synthesis.smallest_bt(self.bts)
 
     @property
     def bt(self) -> Any:
@@ -101,7 +103,7 @@ class Candidate:
 
     @property
     def leaves(self) -> int:
-        return stages.leaves_of(self.tree)
+        return leaves_of(self.tree)
 
     def row(self) -> dict[str, Any]:
         return {"leaf_limit": self.leaf_limit, "stage": self.stage, "leaves": self.leaves,
@@ -176,7 +178,7 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     deadline = deadline or Deadline(None)
     out = Ladder()
     learners = learners_of(agent, settings.relational)
-    choice = stages.held_out(cfg.final_episodes, 0)
+    choice = measure.held_out(cfg.final_episodes, 0)
     took: dict[str, float] = {}  # each kind of step's longest wall time (distil, refine, search)
     pace = Pace(agent_length)  # the run's tree measurements: seconds a step, steps an episode
     running: list[str] = []  # the step under way (what a signal cuts short)
@@ -196,7 +198,7 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         gated = bool(episodes) and kind not in took and deadline.seconds is not None
         if gated and not pace.steps and out.candidates:  # every measurement read from the cache
             last = out.candidates[-1]
-            pace.add(stages.rolled(agent.task, stages.policy(agent, last.tree, last.bts)[1],
+            pace.add(measure.rolled(agent.task, measure.policy(agent, last.tree, last.bts)[1],
                                    choice[:PACE_EPISODES]))
         least = pace.least(episodes) if gated else 0.0
         if least > left + deadline.grace():
@@ -222,7 +224,7 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
             out.steps.append(name)
             return None
         bts = synthesis.synthesise(cfg, agent, tree, settings.seed)
-        ret = stages.measure(cfg, agent, tree, bts, choice)
+        ret = measure.measure(cfg, agent, tree, bts, choice)
         pace.add(ret)
         out.candidates.append(Candidate(
             leaves, stage, tree, bts, ret.mean, ret.std,
@@ -285,11 +287,11 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
                 ahead = leaves == block[0] and learner == learners[0]
                 tree = step(f"distil {tag}", partial(_distil_block, cfg, agent, block, settings,
                                                      learners) if ahead else partial(
-                    stages.distil, cfg, agent, leaves, settings.seed, learner),
+                    distil.distil, cfg, agent, leaves, settings.seed, learner),
                     leaves, "distilled", learner)
                 step(f"refine {tag}", partial(_refine_block, cfg, agent, block, settings,
                                               learners, tree) if ahead else partial(
-                    stages.refine, cfg, agent, tree, settings.seed, settings.scale,
+                    refine.refine, cfg, agent, tree, settings.seed, settings.scale,
                     settings.refine_episodes), leaves, "refined", learner,
                     episodes=_refine_length(cfg, agent, settings))
             if _kept_at(out, leaves, settings) and not settings.full:
@@ -309,7 +311,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         first = partial(_distil_block, cfg, agent, [leaves], settings, learners)
         distilled[leaves] = {
             learner: step(f"distil {learner} at {leaves} leaves", first if i == 0 else partial(
-                stages.distil, cfg, agent, leaves, settings.seed, learner),
+                distil.distil, cfg, agent, leaves, settings.seed, learner),
                 leaves, "distilled", learner)
             for i, learner in enumerate(learners)}
         if _kept_at(out, leaves, settings) and not settings.full:
@@ -330,7 +332,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         final = last and kept is None and deadline.seconds is not None
         most = EXTRA_RESTARTS * settings.restarts if final else None
         step(f"search {learner} at {leaves} leaves", partial(
-            stages.search, cfg, agent, sources, leaves, settings.seed,
+            search.search, cfg, agent, sources, leaves, settings.seed,
             restarts=settings.restarts, relational=learner == "relational",
             scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules,
             # another round, then the polishes of the best restarts (one polish measured on
@@ -338,7 +340,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             # in the time left
             next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most,
             enough=target if final else None),
-            leaves, "searched", learner, episodes=stages.search_length(
+            leaves, "searched", learner, episodes=search.search_length(
                 cfg, agent.task, leaves, restarts=settings.restarts, scale=settings.scale,
                 n_jobs=settings.n_jobs))
         info = out.candidates[-1].search
@@ -359,7 +361,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             keepers = []  # a smaller rung kept the target
     for leaves, name in keepers:
         step(f"refine {name} at {leaves} leaves", partial(
-            stages.refine, cfg, agent, distilled[leaves][name], settings.seed, settings.scale,
+            refine.refine, cfg, agent, distilled[leaves][name], settings.seed, settings.scale,
             settings.refine_episodes), leaves, "refined", name,
             episodes=_refine_length(cfg, agent, settings))
 
@@ -409,10 +411,10 @@ def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
     jobs = [(leaves, learner) for leaves in block for learner in learners]
     if settings.n_jobs > 1 and len(jobs) > 1:
         quiet = replace(cfg, progress=False)
-        parallel_map(stages.distil, [(quiet, agent, leaves, settings.seed, learner,
+        parallel_map(distil.distil, [(quiet, agent, leaves, settings.seed, learner,
                                       settings.env_modules) for leaves, learner in jobs],
                      n_jobs=min(settings.n_jobs, len(jobs)))
-    return stages.distil(cfg, agent, block[0], settings.seed, learners[0])
+    return distil.distil(cfg, agent, block[0], settings.seed, learners[0])
 
 
 def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,
@@ -422,12 +424,12 @@ def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
     jobs = [(leaves, learner) for leaves in block for learner in learners]
     if settings.n_jobs > 1 and len(jobs) > 1:
         quiet = replace(cfg, progress=False)
-        trees = [stages.distil(quiet, agent, leaves, settings.seed, learner)
+        trees = [distil.distil(quiet, agent, leaves, settings.seed, learner)
                  for leaves, learner in jobs]  # read from the cache
-        parallel_map(stages.refine, [(quiet, agent, t, settings.seed, settings.scale,
+        parallel_map(refine.refine, [(quiet, agent, t, settings.seed, settings.scale,
                                       settings.refine_episodes, settings.env_modules)
                                      for t in trees], n_jobs=min(settings.n_jobs, len(jobs)))
-    return stages.refine(cfg, agent, tree, settings.seed, settings.scale,
+    return refine.refine(cfg, agent, tree, settings.seed, settings.scale,
                          settings.refine_episodes)
 
 
@@ -474,7 +476,7 @@ def _kept_at(ladder: Ladder, leaves: int, settings: Settings) -> bool:
 def _distinct(trees: list[Any]) -> list[Any]:
     seen: dict[str, Any] = {}
     for tree in trees:
-        seen.setdefault(stages.tree_key(tree), tree)
+        seen.setdefault(tree_key(tree), tree)
     return list(seen.values())
 
 

@@ -14,8 +14,9 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
-from ibt.engine import budgets, stages
+from ibt.engine import budgets, search
 from ibt.engine.agent import Agent
+from ibt.engine.keys import leaves_of
 from ibt.engine.parallel import parallel_map, processes, wall
 from ibt.evaluate.rollouts import selection_seeds
 from ibt.profiles import Config
@@ -39,20 +40,20 @@ def polish_again(cfg: Config, agent: Agent, tree: Any, leaves: int, seed: int,
     (one a core): the best polished tree where it beats ``tree`` on the search's choice
     episodes, else None; and the choice means, ``tree``'s first. Each polish is cached."""
     config = budgets.search_config(cfg, agent.task, leaves, scale)
-    choice = selection_seeds(stages.choice_episodes(config), seed,
-                             offset=stages.RESTART_CHOICE_OFFSET)
-    method = stages.SEARCHED_REL if relational else stages.SEARCHED
+    choice = selection_seeds(search.choice_episodes(config), seed,
+                             offset=search.RESTART_CHOICE_OFFSET)
+    method = search.SEARCHED_REL if relational else search.SEARCHED
     quiet = replace(cfg, progress=cfg.progress and len(seeds) == 1)
     polish = polish_config(cfg, agent.task, leaves, scale)
-    polished = parallel_map(stages.polish_one, [(quiet, agent, s, method, tree, polish,
+    polished = parallel_map(search.polish_one, [(quiet, agent, s, method, tree, polish,
                                                  env_modules) for s in seeds],
                             n_jobs=processes(n_jobs, len(seeds)))
     trees = [tree, *polished]
-    means = parallel_map(stages.choice_mean, [(cfg, agent, t, choice, env_modules)
+    means = parallel_map(search.choice_mean, [(cfg, agent, t, choice, env_modules)
                                               for t in trees],
                          n_jobs=processes(n_jobs, len(trees)))
     best = max(range(1, len(trees)),
-               key=lambda k: (means[k], -stages.leaves_of(trees[k]), -k))
+               key=lambda k: (means[k], -leaves_of(trees[k]), -k))
     return (trees[best] if means[best] > means[0] else None), tuple(means)
 
 
@@ -61,4 +62,4 @@ def again_length(cfg: Config, task: Task, leaves: int, *, seeds: int, scale: flo
     """The least :func:`polish_again` runs, in episodes of one core's wall time."""
     config = budgets.search_config(cfg, task, leaves, scale)
     return (wall(seeds, n_jobs) * polish_config(cfg, task, leaves, scale).episodes
-            + wall(seeds + 1, n_jobs) * stages.choice_episodes(config))
+            + wall(seeds + 1, n_jobs) * search.choice_episodes(config))

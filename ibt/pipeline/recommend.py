@@ -34,11 +34,12 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from ibt.engine import stages
+from ibt.engine import measure
 from ibt.engine.agent import RANDOM_SEED, Agent
 from ibt.engine.deadline import Deadline
+from ibt.engine.keys import bt_digest
 from ibt.engine.ladder import Candidate, Ladder, Settings, eligible, run_ladder
-from ibt.engine.stages import Returns, bt_digest, held_out
+from ibt.engine.measure import Returns, held_out
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
 from ibt.tasks.task import Task
@@ -198,8 +199,8 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
     agent_key = {"algo": agent.algo, "expert_sha256": agent.digest}
     random_key = {"algo": "random", "policy": "uniform", "rng_seed": RANDOM_SEED}
     choice, confirm = held_out(cfg.final_episodes, 0), held_out(cfg.final_episodes, 1)
-    agent_choice = stages.returns_of(quiet, task, agent_key, lambda: agent.load().act, choice)
-    random_choice = stages.returns_of(quiet, task, random_key, agent.random_act, choice)
+    agent_choice = measure.returns_of(quiet, task, agent_key, lambda: agent.load().act, choice)
+    random_choice = measure.returns_of(quiet, task, random_key, agent.random_act, choice)
     warning = agent_lead(agent_choice, random_choice, task)
     settings = Settings(keep, tuple(sorted(set(leaf_limits))), seed, relational, restarts,
                         n_jobs, budget.scale, budget.refine_episodes, max_nodes,
@@ -239,9 +240,9 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
     return Recommendation(
         task, agent.algo, Path(agent.source), agent.digest, keep, budget, settings.rungs, seed,
         cfg.final_episodes, ladder.candidates, chosen, met,
-        agent=stages.returns_of(quiet, task, agent_key, lambda: agent.load().act, confirm),
-        bt=stages.returns_of(quiet, task, {"bt": bt_digest(bt)}, bt_act, confirm),
-        random=stages.returns_of(quiet, task, random_key, agent.random_act, confirm),
+        agent=measure.returns_of(quiet, task, agent_key, lambda: agent.load().act, confirm),
+        bt=measure.returns_of(quiet, task, {"bt": bt_digest(bt)}, bt_act, confirm),
+        random=measure.returns_of(quiet, task, random_key, agent.random_act, confirm),
         agent_choice=agent_choice.mean, random_choice=random_choice.mean,
         argv=list(argv or []), env_modules=tuple(env_modules), cache_dir=Path(cache_dir),
         ladder=ladder, time_limit=time_limit, elapsed=elapsed, max_nodes=max_nodes,

@@ -28,10 +28,13 @@ from tqdm import tqdm
 
 from ibt.bt.model import BehaviorTree
 from ibt.cache.store import load_or_compute
-from ibt.engine import stages
 from ibt.engine.agent import committed_agent
 from ibt.engine.budgets import box_refine_config
-from ibt.engine.synthesis import command_bt
+from ibt.engine.commands import commands
+from ibt.engine.distil import distillation
+from ibt.engine.keys import doc_digest
+from ibt.engine.refine import command_refinement
+from ibt.engine.synthesis import command_bt, smallest_bt
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.commands import CommandArrays, CommandRefinement
@@ -48,30 +51,30 @@ from ibt.tasks.task import Task
 def box_distill_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                        leaves: int | None = None) -> dict[str, Any]:
     """A continuous distillation of the committed expert (the engine's stage,
-    :func:`ibt.engine.stages.distillation`): ``iterations``, ``best_index``, ``tree`` (a
+    :func:`ibt.engine.distil.distillation`): ``iterations``, ``best_index``, ``tree`` (a
     :func:`ibt.distill.continuous.regressor_doc`), ``wall_seconds``."""
     spec = get_task(task)
     overrides: dict[str, Any] = {} if leaves is None else {"max_leaf_nodes": leaves}
-    return stages.distillation(cfg, committed_agent(spec, algo, cfg.experts_dir), seed, "box",
+    return distillation(cfg, committed_agent(spec, algo, cfg.experts_dir), seed, "box",
                                method, **overrides)
 
 
 def commands_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                     leaves: int | None = None) -> dict[str, Any]:
     """The distilled tree's leaves merged into the fewest named commands that keep its
-    held-out return (:func:`ibt.engine.stages.commands`)."""
+    held-out return (:func:`ibt.engine.commands.commands`)."""
     spec = get_task(task)
     run = box_distill_cached(cfg, spec, algo, method, seed, leaves)
-    return stages.commands(cfg, committed_agent(spec, algo, cfg.experts_dir), run["tree"], seed)
+    return commands(cfg, committed_agent(spec, algo, cfg.experts_dir), run["tree"], seed)
 
 
 def refine_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                   leaves: int | None = None) -> CommandRefinement:
     """The command tree of :func:`commands_cached`, refined by return with the task's budget
-    (:func:`ibt.engine.stages.command_refinement`)."""
+    (:func:`ibt.engine.refine.command_refinement`)."""
     spec = get_task(task)
     source = commands_cached(cfg, spec, algo, method, seed, leaves)["arrays"]
-    return stages.command_refinement(cfg, committed_agent(spec, algo, cfg.experts_dir),
+    return command_refinement(cfg, committed_agent(spec, algo, cfg.experts_dir),
                                      CommandArrays.from_doc(source), seed,
                                      box_refine_config(cfg, spec))
 
@@ -83,7 +86,7 @@ def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,
     spec = get_task(task)
     n = episodes or cfg.final_episodes
     synthesisers = front_synthesisers()
-    params = {"task": spec.name, "tree": stages.doc_digest(arrays.to_doc()), "episodes": n,
+    params = {"task": spec.name, "tree": doc_digest(arrays.to_doc()), "episodes": n,
               "synthesisers": list(synthesisers)}
 
     def compute() -> dict[str, Any]:
@@ -92,7 +95,7 @@ def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,
         for method in synthesisers:
             bts[method] = command_bt(arrays, spec, method)
             out[f"nodes_{method.replace('-', '_')}"] = bts[method].node_count
-        smallest = stages.smallest_bt(bts)
+        smallest = smallest_bt(bts)
         text = bts[smallest].to_json()
         policy = CommandBTPolicy(spec, BehaviorTree.from_json(text))
         result = rollout(spec, policy.act, final_seeds(n))

@@ -38,7 +38,8 @@ from ibt.bt.model import BehaviorTree
 from ibt.cache.store import load_or_compute
 from ibt.distill.loop import Distillation
 from ibt.engine.budgets import refine_config
-from ibt.engine.stages import refinement_cached, smallest_bt
+from ibt.engine.refine import refinement_cached
+from ibt.engine.synthesis import smallest_bt
 from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
 from ibt.refine.by_return import RefineConfig, Refinement

@@ -20,10 +20,10 @@ import pandas as pd
 from joblib import Parallel, delayed, parallel_config
 from tqdm import tqdm
 
-from ibt.cache.store import load_or_compute
+from ibt.cache.store import load_or_compute, tree_digest
 from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
-from ibt.engine.stages import bt_digest, tree_digest
+from ibt.engine.keys import bt_digest
 from ibt.evaluate.policies import TreePolicy
 from ibt.evaluate.rollouts import (
     episode_metrics,

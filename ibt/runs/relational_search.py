@@ -72,7 +72,7 @@ def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_l
     finalists where not the task's (the same search, chosen again:
     :func:`ibt.refine.structure.reselect`, cached as ``evolve-select``; not under ``smoke``)."""
     from ibt.engine.agent import committed_agent
-    from ibt.engine.stages import evolve_key, evolve_one
+    from ibt.engine.search import evolve_key, evolve_one
     from ibt.refine.relational_structure import reselect_relational
 
     spec = get_task(task)
@@ -124,7 +124,7 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
     ``scaled_weights``: candidate weights scaled to each pair's spreads; ``leaf_rule``: how the
     expert's help picks leaf actions ("vote" or "score"); ``selection_episodes``: the held-out
     episodes of the search's and the polish's choices where not the task's."""
-    from ibt.engine.stages import refinement_cached
+    from ibt.engine.refine import refinement_cached
     from ibt.refine.relational_structure import winner
 
     spec = get_task(task)

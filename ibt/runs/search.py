@@ -27,7 +27,9 @@ from ibt.bt.model import BehaviorTree
 from ibt.cache.store import load_or_compute
 from ibt.engine.agent import committed_agent
 from ibt.engine.budgets import evolve_config, polish_config
-from ibt.engine.stages import bt_digest, evolve_one, refinement_cached
+from ibt.engine.keys import bt_digest
+from ibt.engine.refine import refinement_cached
+from ibt.engine.search import evolve_one
 from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
@@ -51,7 +53,7 @@ def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
 def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
                   use_expert: bool = True) -> Evolution:
     """The structure search of one run: the engine's stage
-    (:func:`ibt.engine.stages.evolve_one`) from this study's seed trees, cached on them and
+    (:func:`ibt.engine.search.evolve_one`) from this study's seed trees, cached on them and
     its settings."""
     spec = get_task(task)
     config = evolve_config(cfg, spec, max_leaves, use_expert)

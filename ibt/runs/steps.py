@@ -15,8 +15,9 @@ import pandas as pd
 from ibt.bt.json_io import save_json
 from ibt.bt.model import BehaviorTree
 from ibt.distill.loop import Distillation, DistillConfig
-from ibt.engine import budgets, stages
+from ibt.engine import budgets
 from ibt.engine.agent import committed_agent
+from ibt.engine.distil import distill_key, distillation
 from ibt.evaluate.rollouts import (
     episode_metrics,
     final_seeds,
@@ -42,17 +43,17 @@ def distill_params(cfg: Config, task: str | Task, algo: str, method: str = "imit
                    seed: int = 0, **overrides: Any) -> dict[str, Any]:
     """The cache parameters of one distillation run (see :func:`distill_cached`)."""
     agent = committed_agent(get_task(task), algo, cfg.experts_dir)
-    return stages.distill_key(cfg, agent, seed, "axis", method, **overrides)[1]
+    return distill_key(cfg, agent, seed, "axis", method, **overrides)[1]
 
 
 def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> Distillation:
     """A distillation run of the committed expert (the engine's stage,
-    :func:`ibt.engine.stages.distillation`), from the cache when the same expert,
+    :func:`ibt.engine.distil.distillation`), from the cache when the same expert,
     settings and seed ran before: the key holds the checkpoint's digest, so a retrained expert
     is a cache miss."""
     agent = committed_agent(get_task(task), algo, cfg.experts_dir)
-    return stages.distillation(cfg, agent, seed, "axis", method, **overrides)
+    return distillation(cfg, agent, seed, "axis", method, **overrides)
 
 
 def load_expert(task: str | Task, algo: str, path: str | Path | None = None) -> Expert:
