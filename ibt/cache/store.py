@@ -64,21 +64,21 @@ KEY_PACKAGES = ("gymnasium", "highway-env", "numpy", "scikit-learn", "stable-bas
 #: error.
 CODE_VERSIONS: dict[str, int] = {
     "distill": 1,  # ibt.engine.distil.distillation: the interactive loop of ibt.distill.loop
-    "expert-eval": 1,  # ibt.runs.grid.expert_evaluation
-    "tree-eval": 1,  # ibt.runs.grid.evaluate_tree
-    "bt-eval": 1,  # ibt.runs.grid.evaluate_bt
+    "expert-eval": 1,  # ibt.engine.measure.expert_evaluation
+    "tree-eval": 1,  # ibt.engine.measure.evaluate_tree
+    "bt-eval": 1,  # ibt.engine.measure.evaluate_bt
     "synthesis": 1,  # ibt.engine.synthesis.synthesised: synthesis, verification, the row
     "refine": 3,  # ibt.runs.front.refine_cached: ibt.refine.by_return.refine of a distilled tree
     "front-bt": 1,  # ibt.runs.front.bt_sizes: every synthesiser's verified BT of one tree
     "executors": 1,  # ibt.runs.grid.executors_agree
     "evolve": 1,  # ibt.engine.search.evolve_one: ibt.refine.structure.evolve
-    "protocol": 1,  # ibt.runs.search.protocol_evaluation: a BT on the anchors' protocol
+    "protocol": 1,  # ibt.engine.measure.protocol_evaluation: a BT on the anchors' protocol
     "speed": 1,  # ibt.runs.grid.speed_benchmark: executors' decisions/s, per machine
-    # continuous actions: ibt.engine.distil, commands, refine (box-eval: ibt.runs.continuous)
+    # continuous actions: ibt.engine.distil, .commands, .refine, .measure
     "box-distill": 1,  # distillation: ibt.distill.continuous.distill_box
     "box-commands": 1,  # commands: ibt.synth.commands.choose_commands
     "box-refine": 1,  # command_refinement: ibt.refine.commands.refine_commands
-    "box-eval": 1,  # evaluate_cached: verified BTs of a command tree, final return from JSON
+    "box-eval": 1,  # command_tree_evaluation: a command tree's verified BTs, return from JSON
     # relational tests: ibt.engine.distil, ibt.engine.refine, ibt.runs.front
     "distill-rel": 1,  # distillation: the loop as imitation-bt+rel (the relational learner)
     "refine-rel": 1,  # ibt.refine.relational.refine_relational of a relational tree

@@ -9,7 +9,8 @@ from ibt.cache.store import load_or_compute
 from ibt.engine import budgets
 from ibt.engine.agent import Agent
 from ibt.engine.keys import doc_digest
-from ibt.evaluate.rollouts import rollout, selection_seeds
+from ibt.engine.measure import rolled
+from ibt.evaluate.rollouts import selection_seeds
 from ibt.profiles import Config
 
 
@@ -28,8 +29,8 @@ def commands(cfg: Config, agent: Agent, tree_doc: dict[str, Any], seed: int) -> 
 
     def choose() -> dict[str, Any]:
         seeds = selection_seeds(n, seed, offset=1)
-        scale = rollout(task, agent.load().act, seeds).mean - rollout(
-            task, agent.random_act(seed), seeds).mean
+        scale = (rolled(task, lambda: agent.load().act, seeds).mean
+                 - rolled(task, lambda: agent.random_act(seed), seeds).mean)
         chosen, rows = choose_commands(regressor_from_doc(tree_doc), task, seeds,
                                        scale=scale, tolerance=budgets.COMMAND_TOLERANCE, seed=seed)
         return {"arrays": CommandArrays.from_command_tree(chosen).to_doc(), "rows": rows,

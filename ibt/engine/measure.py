@@ -1,9 +1,18 @@
-"""The measurement stage: a policy's returns on held-out episodes, cached (kind ``returns``).
+"""The measurement stage: every return of a tree, a BT, an agent or the random policy that
+the engine, the studies and the pipeline roll out, each under its cache kind.
 
-A tree, a BT, an agent or the random policy is measured here: :func:`measure` a stage's tree
-(every BT of it decides as it does; a command tree through its smallest BT, whose command
-table is the tree's), :func:`returns_of` any policy under its identity in the cache,
-:func:`rolled` a policy now, uncached, with its wall time (the ladder's pace).
+* ``returns`` (the pipeline, the ladder): every episode's return and length on a block of
+  held-out episodes: :func:`measure` a stage's tree (every BT of it decides as it does; a
+  command tree through its smallest BT, whose command table is the tree's),
+  :func:`agent_returns`, :func:`random_returns`, :func:`bt_returns`, and :func:`returns_of`
+  under which they all are; :func:`rolled` rolls a policy out now, uncached, with its wall time
+  (the ladder's pace);
+* the studies' summaries on the profile's final episodes: ``expert-eval``
+  (:func:`expert_evaluation`), ``tree-eval`` (:func:`evaluate_tree`), ``bt-eval``
+  (:func:`evaluate_bt`), ``protocol`` (:func:`protocol_evaluation`: the anchors' protocol),
+  ``box-eval`` (:func:`command_tree_evaluation`: a command tree's BTs and the smallest's
+  return, rolled out from its JSON); :func:`final_metrics` rolls a policy out uncached (the
+  notebooks' comparisons).
 """
 
 from __future__ import annotations
@@ -14,11 +23,19 @@ from dataclasses import dataclass
 from typing import Any
 
 from ibt.cache.store import load_or_compute
-from ibt.engine.agent import Agent
-from ibt.engine.keys import bt_digest, tree_key
-from ibt.engine.synthesis import smallest_bt
-from ibt.evaluate.rollouts import FINAL_SEED_BASE, ReturnStats, rollout
+from ibt.engine.agent import RANDOM_SEED, Agent
+from ibt.engine.keys import bt_digest, doc_digest, tree_key
+from ibt.engine.synthesis import command_bt, smallest_bt
+from ibt.evaluate.rollouts import (
+    FINAL_SEED_BASE,
+    ReturnStats,
+    episode_metrics,
+    final_seeds,
+    rollout,
+)
 from ibt.profiles import Config
+from ibt.tasks.catalogue import get_task
+from ibt.tasks.task import Task
 
 
 @dataclass
@@ -84,3 +101,158 @@ def policy(agent: Agent, tree: Any, bts: dict[str, Any]
         bt = bts[smallest_bt(bts)]
         return {"bt": bt_digest(bt)}, lambda: CommandBTPolicy(task, bt).act
     return {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act
+
+
+def agent_returns(cfg: Config, agent: Agent, seeds: list[int]) -> Returns:
+    """The agent's returns on ``seeds`` (kind ``returns``, keyed on its digest)."""
+    return returns_of(cfg, agent.task, {"algo": agent.algo, "expert_sha256": agent.digest},
+                      lambda: agent.load().act, seeds)
+
+
+def random_returns(cfg: Config, agent: Agent, seeds: list[int]) -> Returns:
+    """The uniform random policy's returns on ``seeds`` over the agent's actions (kind
+    ``returns``)."""
+    return returns_of(cfg, agent.task, {"algo": "random", "policy": "uniform",
+                                        "rng_seed": RANDOM_SEED}, agent.random_act, seeds)
+
+
+def bt_returns(cfg: Config, task: Task, bt: Any, seeds: list[int]) -> Returns:
+    """A BT's returns on ``seeds`` (kind ``returns``, keyed on its JSON document); a Box
+    task's BT acts through its command table."""
+    if task.continuous:
+        from ibt.synth.commands import CommandBTPolicy
+
+        act: Callable[[], Any] = lambda: CommandBTPolicy(task, bt).act  # noqa: E731
+    else:
+        from ibt.evaluate.policies import BTPolicy
+
+        act = lambda: BTPolicy(task, bt).act  # noqa: E731
+    return returns_of(cfg, task, {"bt": bt_digest(bt)}, act, seeds)
+
+
+# --- the studies' summaries on the final episodes ---------------------------------------------
+
+
+def final_metrics(task: Task, act: Any, episodes: int) -> dict[str, float]:
+    """A policy's return statistics and the task's outcome rates over the first ``episodes``
+    final-evaluation episodes, rolled out now (not cached)."""
+    result = rollout(task, act, final_seeds(episodes))
+    return {"mean_return": result.mean, "std_return": result.std,
+            **episode_metrics(task, result)}
+
+
+def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, float]:
+    """The committed expert's return on the profile's final-evaluation episodes (kind
+    ``expert-eval``)."""
+    from ibt.experts.expert import expert_path, load_expert
+    from ibt.files import file_digest
+
+    task = get_task(task)
+    params = {"task": task.name, "algo": algo, "episodes": cfg.final_episodes,
+              "expert_sha256": file_digest(expert_path(task, algo, cfg.experts_dir))}
+
+    def compute() -> dict[str, float]:
+        expert = load_expert(task, algo, expert_path(task, algo, cfg.experts_dir))
+        result = rollout(task, expert.act, final_seeds(cfg.final_episodes))
+        return {"mean_return": result.mean, "std_return": result.std}
+
+    return load_or_compute("expert-eval", params, compute, cache_dir=cfg.cache_dir,
+                           codec="json", refresh=cfg.refresh)
+
+
+def evaluate_tree(cfg: Config, task: str | Task, tree: Any) -> dict[str, float]:
+    """A decision tree's final evaluation (kind ``tree-eval``, on the tree's exact
+    structure)."""
+    from ibt.cache.store import tree_digest
+    from ibt.evaluate.policies import TreePolicy
+
+    spec = get_task(task)
+    return _final_evaluation(cfg, spec, "tree-eval", {"tree": tree_digest(tree)},
+                             lambda: TreePolicy(spec, tree).act)
+
+
+def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
+    """A BT's final evaluation, rolled out in the environment (kind ``bt-eval``, on its
+    JSON)."""
+    from ibt.evaluate.policies import BTPolicy
+
+    spec = get_task(task)
+    return _final_evaluation(cfg, spec, "bt-eval", {"bt": bt_digest(bt)},
+                             lambda: BTPolicy(spec, bt).act)
+
+
+def _final_evaluation(cfg: Config, spec: Task, kind: str, what: dict[str, str], act: Any
+                      ) -> dict[str, float]:
+    """``act()``'s policy on the profile's final episodes, cached as ``kind`` under ``what``
+    (a tree's or a BT's digest)."""
+    params = {"task": spec.name, "episodes": cfg.final_episodes, **what}
+    return load_or_compute(kind, params,
+                           lambda: final_metrics(spec, act(), cfg.final_episodes),
+                           cache_dir=cfg.cache_dir, codec="json", refresh=cfg.refresh)
+
+
+def protocol_evaluation(cfg: Config, task: str | Task, bt: Any, episodes: int = 1000,
+                        threshold: float | None = 200.0) -> dict[str, Any]:
+    """The anchors' protocol: the BT rolled out from its own JSON on ``episodes`` final
+    episodes (seeds disjoint from every training, refinement and selection seed): mean,
+    standard deviation and the share of episodes at or above ``threshold`` (kind
+    ``protocol``)."""
+    import numpy as np
+
+    from ibt.bt.model import BehaviorTree
+
+    spec = get_task(task)
+    bt = BehaviorTree.from_json(bt.to_json())  # exactly what the committed file holds
+    params = {"task": spec.name, "episodes": episodes, "threshold": threshold,
+              "bt": bt_digest(bt)}
+
+    def compute() -> dict[str, Any]:
+        from ibt.evaluate.policies import BTPolicy
+
+        result = rollout(spec, BTPolicy(spec, bt).act, final_seeds(episodes))
+        share = None if threshold is None else float(np.mean(result.returns >= threshold))
+        return {"episodes": episodes, "mean_return": result.mean, "std_return": result.std,
+                "share_at_threshold": share, "threshold": threshold}
+
+    return load_or_compute("protocol", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                           refresh=cfg.refresh)
+
+
+def command_tree_evaluation(cfg: Config, task: str | Task, arrays: Any,
+                            episodes: int | None = None) -> dict[str, Any]:
+    """Every front synthesiser's BT of a command tree (nodes each), the smallest one's JSON
+    document, and its final-episode statistics rolled out from that JSON text (kind
+    ``box-eval``)."""
+    import json
+
+    import numpy as np
+
+    from ibt.bt.model import BehaviorTree
+    from ibt.synth.commands import CommandBTPolicy
+    from ibt.synth.registry import front_synthesisers
+
+    spec = get_task(task)
+    n = episodes or cfg.final_episodes
+    synthesisers = front_synthesisers()
+    params = {"task": spec.name, "tree": doc_digest(arrays.to_doc()), "episodes": n,
+              "synthesisers": list(synthesisers)}
+
+    def compute() -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        bts = {}
+        for method in synthesisers:
+            bts[method] = command_bt(arrays, spec, method)
+            out[f"nodes_{method.replace('-', '_')}"] = bts[method].node_count
+        smallest = smallest_bt(bts)
+        text = bts[smallest].to_json()
+        policy = CommandBTPolicy(spec, BehaviorTree.from_json(text))
+        result = rollout(spec, policy.act, final_seeds(n))
+        returns = np.asarray(result.returns)
+        out.update({"bt_method": smallest, "bt_nodes": bts[smallest].node_count,
+                    "bt": json.loads(text), "episodes": n, "mean_return": float(returns.mean()),
+                    "std_return": float(returns.std()),
+                    "share_200": float((returns >= 200).mean())})
+        return out
+
+    return load_or_compute("box-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
+                           refresh=cfg.refresh)

@@ -189,18 +189,14 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
               n_jobs: int = 1, full: bool = False, search: bool = True) -> Recommendation:
     """Climb the ladder for ``agent`` within ``time_limit`` seconds; the recommended BT (among
     those of at most ``max_nodes`` nodes) and everything measured."""
-    from ibt.evaluate.policies import BTPolicy
-
     budget = budget or Budget()
     task = agent.task
     cfg = pipeline_config(budget, Path(cache_dir), episodes, progress)
     quiet = replace(cfg, progress=False)
     deadline = Deadline(time_limit)
-    agent_key = {"algo": agent.algo, "expert_sha256": agent.digest}
-    random_key = {"algo": "random", "policy": "uniform", "rng_seed": RANDOM_SEED}
     choice, confirm = held_out(cfg.final_episodes, 0), held_out(cfg.final_episodes, 1)
-    agent_choice = measure.returns_of(quiet, task, agent_key, lambda: agent.load().act, choice)
-    random_choice = measure.returns_of(quiet, task, random_key, agent.random_act, choice)
+    agent_choice = measure.agent_returns(quiet, agent, choice)
+    random_choice = measure.random_returns(quiet, agent, choice)
     warning = agent_lead(agent_choice, random_choice, task)
     settings = Settings(keep, tuple(sorted(set(leaf_limits))), seed, relational, restarts,
                         n_jobs, budget.scale, budget.refine_episodes, max_nodes,
@@ -231,18 +227,12 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
             "no candidate was finished in the time given: raise --time")
     chosen, met = choose(ladder.candidates, keep, max_nodes)
     bt = chosen.bt
-    if task.continuous:
-        from ibt.synth.commands import CommandBTPolicy
-
-        bt_act: Any = lambda: CommandBTPolicy(task, bt).act  # noqa: E731
-    else:
-        bt_act = lambda: BTPolicy(task, bt).act  # noqa: E731
     return Recommendation(
         task, agent.algo, Path(agent.source), agent.digest, keep, budget, settings.rungs, seed,
         cfg.final_episodes, ladder.candidates, chosen, met,
-        agent=measure.returns_of(quiet, task, agent_key, lambda: agent.load().act, confirm),
-        bt=measure.returns_of(quiet, task, {"bt": bt_digest(bt)}, bt_act, confirm),
-        random=measure.returns_of(quiet, task, random_key, agent.random_act, confirm),
+        agent=measure.agent_returns(quiet, agent, confirm),
+        bt=measure.bt_returns(quiet, task, bt, confirm),
+        random=measure.random_returns(quiet, agent, confirm),
         agent_choice=agent_choice.mean, random_choice=random_choice.mean,
         argv=list(argv or []), env_modules=tuple(env_modules), cache_dir=Path(cache_dir),
         ladder=ladder, time_limit=time_limit, elapsed=elapsed, max_nodes=max_nodes,

@@ -35,16 +35,16 @@ import pandas as pd
 from tqdm import tqdm
 
 from ibt.bt.model import BehaviorTree
-from ibt.cache.store import load_or_compute
+from ibt.cache.store import load_or_compute, tree_digest
 from ibt.distill.loop import Distillation
 from ibt.engine.budgets import refine_config
+from ibt.engine.measure import evaluate_bt, evaluate_tree, expert_evaluation
 from ibt.engine.refine import refinement_cached
 from ibt.engine.synthesis import smallest_bt
 from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
 from ibt.refine.by_return import RefineConfig, Refinement
 from ibt.runs import anchors
-from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.runs.steps import distill_cached
 from ibt.synth.registry import front_synthesisers, get_synthesiser
 from ibt.tasks.catalogue import TASKS, get_task

@@ -69,9 +69,9 @@ def relational_row(cfg: Config, task: str | Task, algo: str, seed: int, leaves: 
     smallest verified BT of the front's synthesisers), relational tests (of that BT and of
     the tree), final mean return and retention (the profile's final episodes)."""
     from ibt.distill.relational import relational_tests
+    from ibt.engine.measure import evaluate_tree, expert_evaluation
     from ibt.evaluate.rollouts import retention_norm, retention_raw
     from ibt.runs.front import bt_sizes
-    from ibt.runs.grid import evaluate_tree, expert_evaluation
 
     spec = get_task(task)
     run = distill_rel(cfg, spec, algo, seed, leaves)

@@ -149,10 +149,9 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
     from its JSON, the share at or above ``threshold``), and what the run cost."""
     from ibt.bt.model import BehaviorTree
     from ibt.distill.relational import relational_tests
+    from ibt.engine.measure import evaluate_tree, expert_evaluation, protocol_evaluation
     from ibt.evaluate.rollouts import retention_norm
     from ibt.runs.front import bar_of, bt_sizes
-    from ibt.runs.grid import evaluate_tree, expert_evaluation
-    from ibt.runs.search import protocol_evaluation
 
     spec = get_task(task)
     found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds,

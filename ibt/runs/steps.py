@@ -18,12 +18,10 @@ from ibt.distill.loop import Distillation, DistillConfig
 from ibt.engine import budgets
 from ibt.engine.agent import committed_agent
 from ibt.engine.distil import distill_key, distillation
+from ibt.engine.measure import final_metrics
 from ibt.evaluate.rollouts import (
-    episode_metrics,
-    final_seeds,
     retention_norm,
     retention_raw,
-    rollout,
 )
 from ibt.experts import expert as experts
 from ibt.experts.expert import Expert
@@ -91,10 +89,8 @@ def compare_policies(cfg: Config, task: str | Task, policies: dict[str, Any],
         raise KeyError(f"reference policy {reference!r} is not among {list(policies)}")
     rows = []
     for name, policy in policies.items():
-        result = rollout(task_obj, policy.act, final_seeds(cfg.final_episodes))
-        row = {"policy": name, "episodes": len(result.returns),
-               "mean_return": result.mean, "std_return": result.std}
-        row.update(episode_metrics(task_obj, result))
+        row = {"policy": name, "episodes": cfg.final_episodes,
+               **final_metrics(task_obj, policy.act, cfg.final_episodes)}
         row["nodes"] = _nodes(policy)
         rows.append(row)
     frame = pd.DataFrame(rows).set_index("policy")
