@@ -479,12 +479,12 @@ def test_the_relational_search_starts_from_the_relational_trees_too(agents, tmp_
     agent = sb3_agent(resolve_task("ToyCart-v0"), "ppo", agents / "cart.zip")
     ladder = run_ladder(cfg, agent, Settings(keep=1.01, rungs=(2, 4), restarts=1),
                         agent_mean=0.0, random_mean=-10.0)
-    distilled = {(c.leaf_limit, c.relational): c.tree for c in ladder.candidates
+    distilled = {(c.leaf_limit, c.learner): c.tree for c in ladder.candidates
                  if c.stage == "distilled"}
     first = seeded[0]  # the bisection's first probe: rung 2 of (2, 4)
     assert feature_map_of(first[0]) is None  # axis-aligned first
     assert any(feature_map_of(t) is not None for t in first)  # relational ones too
-    expected = [distilled[(rung, rel)] for rel in (False, True) for rung in (2, 4)]
+    expected = [distilled[(rung, name)] for name in ("axis", "relational") for rung in (2, 4)]
     assert [tree_key(t) for t in first] == list(dict.fromkeys(
         tree_key(t) for t in expected))
     assert any(c.stage == "searched" for c in ladder.candidates)

@@ -38,8 +38,8 @@ _ROLLOUT = ("evaluate/rollouts.py", "evaluate/policies.py", "tasks/task.py", "ta
 _TREES = ("refine/tree_arrays.py", "distill/loop.py")
 #: the engine's modules every stage shares: identities, the agent, the budgets
 _ENGINE = ("engine/keys.py", "engine/agent.py", "engine/budgets.py")
-_DISTIL = ("engine/distil.py", *_ENGINE)
-_REFINE = ("engine/refine.py", *_ENGINE)
+_DISTIL = ("engine/distil.py", "engine/learners.py", *_ENGINE)
+_REFINE = ("engine/refine.py", "engine/learners.py", *_ENGINE)
 _SEARCH = ("engine/search.py", "engine/refine.py", "engine/measure.py", *_ENGINE)
 _MEASURE = ("engine/measure.py", "engine/synthesis.py", *_ENGINE)
 _AGENTS = ("experts/expert.py", "experts/checkpoint.py", "experts/callable_agent.py")

@@ -34,7 +34,6 @@ from ibt.evaluate.rollouts import (
     rollout,
 )
 from ibt.profiles import Config
-from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
 
@@ -141,13 +140,12 @@ def final_metrics(task: Task, act: Any, episodes: int) -> dict[str, float]:
             **episode_metrics(task, result)}
 
 
-def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, float]:
+def expert_evaluation(cfg: Config, task: Task, algo: str) -> dict[str, float]:
     """The committed expert's return on the profile's final-evaluation episodes (kind
     ``expert-eval``)."""
     from ibt.experts.expert import expert_path, load_expert
     from ibt.files import file_digest
 
-    task = get_task(task)
     params = {"task": task.name, "algo": algo, "episodes": cfg.final_episodes,
               "expert_sha256": file_digest(expert_path(task, algo, cfg.experts_dir))}
 
@@ -160,38 +158,36 @@ def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, flo
                            codec="json", refresh=cfg.refresh)
 
 
-def evaluate_tree(cfg: Config, task: str | Task, tree: Any) -> dict[str, float]:
+def evaluate_tree(cfg: Config, task: Task, tree: Any) -> dict[str, float]:
     """A decision tree's final evaluation (kind ``tree-eval``, on the tree's exact
     structure)."""
     from ibt.cache.store import tree_digest
     from ibt.evaluate.policies import TreePolicy
 
-    spec = get_task(task)
-    return _final_evaluation(cfg, spec, "tree-eval", {"tree": tree_digest(tree)},
-                             lambda: TreePolicy(spec, tree).act)
+    return _final_evaluation(cfg, task, "tree-eval", {"tree": tree_digest(tree)},
+                             lambda: TreePolicy(task, tree).act)
 
 
-def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
+def evaluate_bt(cfg: Config, task: Task, bt: Any) -> dict[str, float]:
     """A BT's final evaluation, rolled out in the environment (kind ``bt-eval``, on its
     JSON)."""
     from ibt.evaluate.policies import BTPolicy
 
-    spec = get_task(task)
-    return _final_evaluation(cfg, spec, "bt-eval", {"bt": bt_digest(bt)},
-                             lambda: BTPolicy(spec, bt).act)
+    return _final_evaluation(cfg, task, "bt-eval", {"bt": bt_digest(bt)},
+                             lambda: BTPolicy(task, bt).act)
 
 
-def _final_evaluation(cfg: Config, spec: Task, kind: str, what: dict[str, str], act: Any
+def _final_evaluation(cfg: Config, task: Task, kind: str, what: dict[str, str], act: Any
                       ) -> dict[str, float]:
     """``act()``'s policy on the profile's final episodes, cached as ``kind`` under ``what``
     (a tree's or a BT's digest)."""
-    params = {"task": spec.name, "episodes": cfg.final_episodes, **what}
+    params = {"task": task.name, "episodes": cfg.final_episodes, **what}
     return load_or_compute(kind, params,
-                           lambda: final_metrics(spec, act(), cfg.final_episodes),
+                           lambda: final_metrics(task, act(), cfg.final_episodes),
                            cache_dir=cfg.cache_dir, codec="json", refresh=cfg.refresh)
 
 
-def protocol_evaluation(cfg: Config, task: str | Task, bt: Any, episodes: int = 1000,
+def protocol_evaluation(cfg: Config, task: Task, bt: Any, episodes: int = 1000,
                         threshold: float | None = 200.0) -> dict[str, Any]:
     """The anchors' protocol: the BT rolled out from its own JSON on ``episodes`` final
     episodes (seeds disjoint from every training, refinement and selection seed): mean,
@@ -201,15 +197,14 @@ def protocol_evaluation(cfg: Config, task: str | Task, bt: Any, episodes: int = 
 
     from ibt.bt.model import BehaviorTree
 
-    spec = get_task(task)
     bt = BehaviorTree.from_json(bt.to_json())  # exactly what the committed file holds
-    params = {"task": spec.name, "episodes": episodes, "threshold": threshold,
+    params = {"task": task.name, "episodes": episodes, "threshold": threshold,
               "bt": bt_digest(bt)}
 
     def compute() -> dict[str, Any]:
         from ibt.evaluate.policies import BTPolicy
 
-        result = rollout(spec, BTPolicy(spec, bt).act, final_seeds(episodes))
+        result = rollout(task, BTPolicy(task, bt).act, final_seeds(episodes))
         share = None if threshold is None else float(np.mean(result.returns >= threshold))
         return {"episodes": episodes, "mean_return": result.mean, "std_return": result.std,
                 "share_at_threshold": share, "threshold": threshold}
@@ -218,7 +213,7 @@ def protocol_evaluation(cfg: Config, task: str | Task, bt: Any, episodes: int = 
                            refresh=cfg.refresh)
 
 
-def command_tree_evaluation(cfg: Config, task: str | Task, arrays: Any,
+def command_tree_evaluation(cfg: Config, task: Task, arrays: Any,
                             episodes: int | None = None) -> dict[str, Any]:
     """Every front synthesiser's BT of a command tree (nodes each), the smallest one's JSON
     document, and its final-episode statistics rolled out from that JSON text (kind
@@ -231,22 +226,21 @@ def command_tree_evaluation(cfg: Config, task: str | Task, arrays: Any,
     from ibt.synth.commands import CommandBTPolicy
     from ibt.synth.registry import front_synthesisers
 
-    spec = get_task(task)
     n = episodes or cfg.final_episodes
     synthesisers = front_synthesisers()
-    params = {"task": spec.name, "tree": doc_digest(arrays.to_doc()), "episodes": n,
+    params = {"task": task.name, "tree": doc_digest(arrays.to_doc()), "episodes": n,
               "synthesisers": list(synthesisers)}
 
     def compute() -> dict[str, Any]:
         out: dict[str, Any] = {}
         bts = {}
         for method in synthesisers:
-            bts[method] = command_bt(arrays, spec, method)
+            bts[method] = command_bt(arrays, task, method)
             out[f"nodes_{method.replace('-', '_')}"] = bts[method].node_count
         smallest = smallest_bt(bts)
         text = bts[smallest].to_json()
-        policy = CommandBTPolicy(spec, BehaviorTree.from_json(text))
-        result = rollout(spec, policy.act, final_seeds(n))
+        policy = CommandBTPolicy(task, BehaviorTree.from_json(text))
+        result = rollout(task, policy.act, final_seeds(n))
         returns = np.asarray(result.returns)
         out.update({"bt_method": smallest, "bt_nodes": bts[smallest].node_count,
                     "bt": json.loads(text), "episodes": n, "mean_return": float(returns.mean()),

@@ -1,12 +1,12 @@
 """The refinement stage: a tree refined by return (thresholds, leaves, pruning; a command
-tree's values too), cached under ``refine``, ``refine-rel`` or ``box-refine``."""
+tree's values too), cached under ``refine``, ``refine-rel`` or ``box-refine``: the cached
+refinements the learners' entries (:mod:`ibt.engine.learners`) and the studies call."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from ibt.cache.store import load_or_compute, tree_digest
-from ibt.engine import budgets
 from ibt.engine.agent import Agent
 from ibt.engine.distil import import_env_modules
 from ibt.engine.keys import doc_digest
@@ -57,22 +57,12 @@ def refinement_cached(cfg: Config, task: Task, algo: str, seed: int, source_meth
                            cache_dir=cfg.cache_dir, codec="refinement", refresh=cfg.refresh)
 
 
-def refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float = 1.0,
+def refine(cfg: Config, agent: Agent, learner: str, tree: Any, seed: int, scale: float = 1.0,
            episodes: int | None = None, env_modules: tuple[str, ...] = ()) -> Any:
-    """``tree`` refined by return (kinds ``refine``, ``refine-rel``, ``box-refine``): the
-    refinement's chosen tree. Runs in a worker process too (the user's environment modules
-    are imported there first)."""
-    from ibt.refine.commands import CommandArrays
+    """``tree``, the ``learner``'s, refined by return as its registry entry says (kinds
+    ``refine``, ``refine-rel``, ``box-refine``, ...): the refinement's chosen tree. Runs in a
+    worker process too (the user's environment modules are imported there first)."""
+    from ibt.engine.learners import get_learner
 
     import_env_modules(env_modules)
-    task = agent.task
-    if isinstance(tree, CommandArrays):
-        config = budgets.scaled_refine_config(cfg, task, scale, episodes, commands=True)
-        return command_refinement(cfg, agent, tree, seed, config).best
-    from ibt.distill.relational import RelationalTreeClassifier
-    from ibt.refine.relational import best_tree
-
-    source = budgets.RELATIONAL if isinstance(tree, RelationalTreeClassifier) else "imitation-bt"
-    return best_tree(refinement_cached(cfg, task, agent.algo, seed, source, tree,
-                                       budgets.scaled_refine_config(cfg, task, scale,
-                                                                    episodes)))
+    return get_learner(learner).refine(cfg, agent, tree, seed, scale, episodes)

@@ -143,8 +143,9 @@ def pipeline_config(budget: Budget, cache_dir: Path, episodes: int | None, progr
 
 def choose(candidates: list[Candidate], keep: float, max_nodes: int | None = None
            ) -> tuple[Candidate, bool]:
-    """The smallest BT keeping ``keep`` (ties: axis-aligned, then higher retention), else the
-    best retention (ties: fewer nodes, then axis-aligned); and whether the target was met.
+    """The smallest BT keeping ``keep`` (ties: the simpler learner, the registry's order:
+    axis-aligned first; then higher retention), else the best retention (ties: fewer nodes,
+    then the simpler learner); and whether the target was met.
     Only BTs of at most ``max_nodes`` nodes count; ``ValueError`` when there is none."""
     pool = [c for c in candidates if max_nodes is None or c.bt_nodes <= max_nodes]
     if not pool:
@@ -153,8 +154,8 @@ def choose(candidates: list[Candidate], keep: float, max_nodes: int | None = Non
                          f"{smallest}); raise --max-nodes or give more --time")
     meeting = [c for c in pool if c.retention >= 100 * keep]
     if meeting:
-        return min(meeting, key=lambda c: (c.bt_nodes, c.relational, -c.retention)), True
-    return max(pool, key=lambda c: (c.retention, -c.bt_nodes, not c.relational)), False
+        return min(meeting, key=lambda c: (c.bt_nodes, c.rank, -c.retention)), True
+    return max(pool, key=lambda c: (c.retention, -c.bt_nodes, -c.rank)), False
 
 
 class DegenerateAgent(ValueError):

@@ -277,7 +277,7 @@ def anchor_table(cfg: Config, experts: list[tuple[str, str]]) -> pd.DataFrame:
             if task != anchor.task:
                 continue
             spec = get_task(task)
-            expert = expert_evaluation(cfg, task, algo)["mean_return"]
+            expert = expert_evaluation(cfg, spec, algo)["mean_return"]
             rows.append({"source": anchor.source, "task": task, "expert": algo,
                          "tree_nodes": anchor.nodes, "tree_leaves": anchor.leaves,
                          "mean_return": anchor.mean_return,
@@ -298,7 +298,7 @@ def committed_bt(cfg: Config, task: str, algo: str, seeds: list[int], leaves: in
     best = max(rows, key=lambda r: (r["mean_return"], -r["bt_nodes"], -r["seed"]))
     sizes = bt_sizes(cfg, task, plus_run(cfg, task, algo, int(best["seed"]), leaves).tree)
     bt = BehaviorTree.from_dict(sizes["bt"])
-    rollout = evaluate_bt(cfg, task, bt)
+    rollout = evaluate_bt(cfg, get_task(task), bt)
     return {"bt": bt, "seed": int(best["seed"]), "mean_return": rollout["mean_return"],
             "matches_tree": bool(np.isclose(rollout["mean_return"], best["mean_return"]))}
 

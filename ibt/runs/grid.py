@@ -23,12 +23,8 @@ from tqdm import tqdm
 from ibt.cache.store import load_or_compute, tree_digest
 from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
+from ibt.engine import measure
 from ibt.engine.keys import bt_digest
-from ibt.engine.measure import (  # the notebooks' and the views' names, from their one home
-    evaluate_bt,
-    evaluate_tree,
-    expert_evaluation,
-)
 from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.experts.expert import expert_path, load_expert
 from ibt.experts.training import expert_statuses
@@ -85,6 +81,21 @@ def uncached(cfg: Config, cells: Iterable[Cell]) -> list[Cell]:
 
     return [c for c in cells if not is_cached("distill", distill_params(
         cfg, c.task, c.algo, c.method, c.seed, **dict(c.overrides)), cache_dir=cfg.cache_dir)]
+
+
+def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, float]:
+    """:func:`ibt.engine.measure.expert_evaluation` of a task named or given (the notebooks')."""
+    return measure.expert_evaluation(cfg, get_task(task), algo)
+
+
+def evaluate_tree(cfg: Config, task: str | Task, tree: Any) -> dict[str, float]:
+    """:func:`ibt.engine.measure.evaluate_tree` of a task named or given (the notebooks')."""
+    return measure.evaluate_tree(cfg, get_task(task), tree)
+
+
+def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
+    """:func:`ibt.engine.measure.evaluate_bt` of a task named or given (the notebooks')."""
+    return measure.evaluate_bt(cfg, get_task(task), bt)
 
 
 def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:

@@ -119,7 +119,8 @@ def protocol_table(cfg: Config, table: Any, threshold: dict[str, float] | None =
     for run in table[table["method"] == STRUCTURE].itertuples(index=False):
         found = structure_run(cfg, run.task, run.expert, int(run.seed), int(run.max_leaf_nodes))
         bt = BehaviorTree.from_dict(bt_sizes(cfg, run.task, found.tree)["bt"])
-        result = protocol_evaluation(cfg, run.task, bt, episodes, threshold.get(run.task))
+        result = protocol_evaluation(cfg, get_task(run.task), bt, episodes,
+                                     threshold.get(run.task))
         rows.append({"task": run.task, "expert": run.expert, "max_leaf_nodes": run.max_leaf_nodes,
                      "seed": run.seed, "tree_leaves": run.tree_leaves, "bt_nodes": bt.node_count,
                      "episodes": result["episodes"], "mean_return": result["mean_return"],
