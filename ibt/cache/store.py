@@ -68,7 +68,7 @@ CODE_VERSIONS: dict[str, int] = {
     "tree-eval": 1,  # ibt.engine.measure.evaluate_tree
     "bt-eval": 1,  # ibt.engine.measure.evaluate_bt
     "synthesis": 1,  # ibt.engine.synthesis.synthesised: synthesis, verification, the row
-    "refine": 3,  # ibt.runs.front.refine_cached: ibt.refine.by_return.refine of a distilled tree
+    "refine": 3,  # ibt.runs.front.plus_refinement: ibt.refine.by_return.refine of a distilled tree
     "front-bt": 1,  # ibt.runs.front.bt_sizes: every synthesiser's verified BT of one tree
     "executors": 1,  # ibt.runs.grid.executors_agree
     "evolve": 1,  # ibt.engine.search.evolve_one: ibt.refine.structure.evolve

@@ -4,9 +4,10 @@ A search polishes each of its best restarts once (CMA-ES on the thresholds, then
 On LunarLander (PPO, 8 leaves) polishing the chosen 20-node tree a second time moved its mean
 over 1,000 fresh episodes from 236.3 to 236.1 and 239.2 (two seeds, the polish's episodes) and
 to 245.2 and 238.3 (two seeds, twice them): the polish had not converged. So time the ladder
-has left over goes to polishing again, each core one seed at :data:`AGAIN_FACTOR` times the
-polish's episodes (settings chosen after that one experiment), the tree kept only where a
-polished one beats it on the search's own choice episodes (never the recommendation's).
+has left over goes to polishing again, each core one seed at
+:data:`ibt.engine.budgets.AGAIN_FACTOR` times the polish's episodes (settings chosen after that
+one experiment, :func:`ibt.engine.budgets.again_config`), the tree kept only where a polished
+one beats it on the search's own choice episodes (never the recommendation's).
 """
 
 from __future__ import annotations
@@ -22,14 +23,7 @@ from ibt.evaluate.rollouts import selection_seeds
 from ibt.profiles import Config
 from ibt.tasks.task import Task
 
-AGAIN_FACTOR = 2  # a polish again runs this many times the search's polish episodes
 AGAIN_ROUNDS = 3  # at most this many rounds, each from the last one's tree
-
-
-def polish_config(cfg: Config, task: Task, leaves: int, scale: float) -> Any:
-    """The search's polish at ``leaves``, with :data:`AGAIN_FACTOR` times its episodes."""
-    polish = budgets.polish_config(cfg, budgets.search_config(cfg, task, leaves, scale))
-    return replace(polish, episodes=AGAIN_FACTOR * polish.episodes)
 
 
 def polish_again(cfg: Config, agent: Agent, tree: Any, leaves: int, seed: int,
@@ -44,7 +38,7 @@ def polish_again(cfg: Config, agent: Agent, tree: Any, leaves: int, seed: int,
                              offset=search.RESTART_CHOICE_OFFSET)
     method = search.SEARCHED_REL if relational else search.SEARCHED
     quiet = replace(cfg, progress=cfg.progress and len(seeds) == 1)
-    polish = polish_config(cfg, agent.task, leaves, scale)
+    polish = budgets.again_config(cfg, agent.task, leaves, scale)
     polished = parallel_map(search.polish_one, [(quiet, agent, s, method, tree, polish,
                                                  env_modules) for s in seeds],
                             n_jobs=processes(n_jobs, len(seeds)))
@@ -61,5 +55,5 @@ def again_length(cfg: Config, task: Task, leaves: int, *, seeds: int, scale: flo
                  n_jobs: int) -> float:
     """The least :func:`polish_again` runs, in episodes of one core's wall time."""
     config = budgets.search_config(cfg, task, leaves, scale)
-    return (wall(seeds, n_jobs) * polish_config(cfg, task, leaves, scale).episodes
+    return (wall(seeds, n_jobs) * budgets.again_config(cfg, task, leaves, scale).episodes
             + wall(seeds + 1, n_jobs) * search.choice_episodes(config))

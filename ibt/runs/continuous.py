@@ -60,15 +60,14 @@ def commands_cached(cfg: Config, task: str | Task, algo: str, method: str, seed:
     return commands(cfg, committed_agent(spec, algo, cfg.experts_dir), run["tree"], seed)
 
 
-def refine_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
-                  leaves: int | None = None) -> CommandRefinement:
+def command_refinement_of(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
+                          leaves: int | None = None) -> CommandRefinement:
     """The command tree of :func:`commands_cached`, refined by return with the task's budget
     (:func:`ibt.engine.refine.command_refinement`)."""
     spec = get_task(task)
     source = commands_cached(cfg, spec, algo, method, seed, leaves)["arrays"]
     return command_refinement(cfg, committed_agent(spec, algo, cfg.experts_dir),
-                                     CommandArrays.from_doc(source), seed,
-                                     box_refine_config(cfg, spec))
+                              CommandArrays.from_doc(source), seed, box_refine_config(cfg, spec))
 
 
 @dataclass(frozen=True)
@@ -90,7 +89,8 @@ def point_arrays(cfg: Config, point: BoxPoint) -> tuple[CommandArrays, dict[str,
     info: dict[str, Any] = {"commands_tree_return": chosen["rows"][-1]["tree_return"]}
     if not point.refined:
         return CommandArrays.from_doc(chosen["arrays"]), info
-    record = refine_cached(cfg, spec, point.algo, point.method, point.seed, point.leaves)
+    record = command_refinement_of(cfg, spec, point.algo, point.method, point.seed,
+                                   point.leaves)
     info.update({"refine_episodes": record.episodes, "refine_cpu_s": record.cpu_seconds,
                  "refine_steps": record.steps,
                  "selection_before": record.selection_means[0],

@@ -103,8 +103,9 @@ def ranked_sources(cfg: Config, task: str | Task, algo: str, seed: int
     return sorted(runs, key=lambda mr: -mr[1].iterations[mr[1].best_index]["selection_mean"])
 
 
-def refine_cached(cfg: Config, task: str | Task, algo: str, seed: int, source_method: str, *,
-                  max_leaves: int | None, config: RefineConfig | None = None) -> Refinement:
+def plus_refinement(cfg: Config, task: str | Task, algo: str, seed: int, source_method: str,
+                    *, max_leaves: int | None, config: RefineConfig | None = None
+                    ) -> Refinement:
     """Refine one source run's tree, pruned to ``max_leaves`` (cached on tree and settings).
 
     ``max_leaves`` None refines without forcing the tree smaller.
@@ -138,17 +139,12 @@ def plus_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: in
     held-out selection episodes (the same episodes for every source)."""
     task = get_task(task)
     ranked = ranked_sources(cfg, task, algo, seed)
-    refined = [(m, refine_cached(cfg, task, algo, seed, m, max_leaves=max_leaves))
+    refined = [(m, plus_refinement(cfg, task, algo, seed, m, max_leaves=max_leaves))
                for m, _ in ranked[:task.refine_sources]]
     method, chosen = max(refined, key=lambda mr: mr[1].selection_means[mr[1].best_index])
     return PlusResult(method, chosen, sum(run.wall_seconds for _, run in ranked),
                       sum(r.cpu_seconds for _, r in refined),
                       sum(r.episodes for _, r in refined), sum(r.steps for _, r in refined))
-
-
-def synthesise(tree: Any, task: Task, method: str) -> BehaviorTree:
-    """One verified BT of ``tree`` (every synthesiser verifies; raises if it disagrees)."""
-    return get_synthesiser(method)(tree, task).bt
 
 
 def bt_sizes(cfg: Config, task: str | Task, tree: Any) -> dict[str, Any]:
@@ -166,7 +162,7 @@ def bt_sizes(cfg: Config, task: str | Task, tree: Any) -> dict[str, Any]:
         bts = {}
         for method in synthesisers:
             start = time.perf_counter()
-            bt = synthesise(tree, spec, method)
+            bt = get_synthesiser(method)(tree, spec).bt  # verified: raises if it disagrees
             key = method.replace("-", "_")
             out[f"nodes_{key}"] = bt.node_count
             out[f"conditions_{key}"] = bt.node_types()["condition"]
