@@ -16,6 +16,7 @@ from ibt.engine.learners import (
     Learner,
     get_learner,
     learners_for,
+    loop_fit,
     rank,
 )
 
@@ -47,18 +48,29 @@ def test_an_unknown_learner_is_named_with_the_known_ones():
         get_learner("cart")
 
 
+class Stumps:
+    """A toy learner's tree fit: the loop's CART, at most two levels deep (the interactive
+    loop's :class:`ibt.distill.loop.Learner`, as a new learner's module would give)."""
+
+    def __init__(self, config: Any, seed: int) -> None:
+        from ibt.distill.loop import ClassifierLearner
+
+        self.base, self.config, self.seed = ClassifierLearner(config, seed), config, seed
+
+    def __getattr__(self, name: str) -> Any:  # label, signature, predictor, mix: CART's
+        return getattr(self.base, name)
+
+    def fit(self, x: Any, y: Any) -> Any:
+        from sklearn.tree import DecisionTreeClassifier
+
+        return DecisionTreeClassifier(max_depth=2, max_leaf_nodes=self.config.max_leaf_nodes,
+                                      random_state=self.seed).fit(x, y)
+
+
 def _stump_settings(cfg: Any, agent: Any, method: str | None, overrides: dict[str, Any]) -> Any:
-    """A toy learner: the interactive loop's CART, at most two levels deep."""
     from ibt.engine import budgets
 
-    return budgets.distill_config(cfg, agent.task, method or "imitation-bt", max_depth=2,
-                                  **overrides)
-
-
-def _stump_fit(cfg: Any, agent: Any, config: Any, seed: int) -> Any:
-    from ibt.distill.loop import distill
-
-    return distill(agent.task, agent.load(), config, seed, progress=False)
+    return budgets.distill_config(cfg, agent.task, method or "imitation-bt", **overrides)
 
 
 def _stump_refine(cfg: Any, agent: Any, tree: Any, seed: int, scale: float,
@@ -66,8 +78,8 @@ def _stump_refine(cfg: Any, agent: Any, tree: Any, seed: int, scale: float,
     return tree  # a toy: its tree as distilled
 
 
-STUMP = Learner("stump", DISCRETE, "stump-distill", "distillation", _stump_settings, _stump_fit,
-                lambda cfg, agent, run, seed: run.best_tree, _stump_refine)
+STUMP = Learner("stump", DISCRETE, "stump-distill", "distillation", _stump_settings,
+                loop_fit(Stumps), lambda cfg, agent, run, seed: run.best_tree, _stump_refine)
 
 
 def test_a_learner_registered_outside_the_engine_is_tried_by_the_ladder(agents, tmp_path,

@@ -7,6 +7,8 @@ the pipeline that run one stage on one agent compute, and cache, the same thing.
 * :mod:`ibt.engine.agent`: the agent to distil (an SB3 checkpoint or a ``MODULE:FUNCTION``
   callable), its identity for cache keys and its random baseline (discrete or Box);
 * :mod:`ibt.engine.budgets`: every stage's settings for a task under a profile, in episodes;
+* :mod:`ibt.engine.learners`: the registry of learners (``axis``, ``relational``, ``box``):
+  the action space each accepts, its cache kind, its settings, loop, tree and refinement;
 * the stages, a module each, each stage one cached function keyed in one place:
   :mod:`ibt.engine.distil` (the interactive loop at a leaf limit), :mod:`ibt.engine.commands`
   (a Box task's leaves merged into named commands), :mod:`ibt.engine.refine` (by return),

@@ -112,6 +112,20 @@ def _loop_settings(fixed: str | None) -> Callable[[Config, Agent, str | None, di
     return settings
 
 
+def loop_fit(make: Callable[[Any, int], Any]) -> Callable[[Config, Agent, Any, int], Any]:
+    """The ``fit`` of a learner the interactive loop runs with a tree fit of its own:
+    ``make(settings, seed)`` gives its :class:`ibt.distill.loop.Learner` (how it labels, fits,
+    acts and mixes), run by :func:`ibt.distill.loop.interactive_loop`; the run is a
+    :class:`ibt.distill.loop.Distillation` (codec ``distillation``, for trees it encodes)."""
+    def fit(cfg: Config, agent: Agent, config: Any, seed: int) -> Any:
+        from ibt.distill.loop import interactive_loop
+
+        return interactive_loop(agent.task, agent.load(), config, seed, make(config, seed),
+                                progress=cfg.progress)
+
+    return fit
+
+
 def _loop_fit(cfg: Config, agent: Agent, config: Any, seed: int) -> Any:
     """The interactive loop of a classification tree (the method's tree fit:
     :data:`ibt.distill.loop.METHODS`): a :class:`ibt.distill.loop.Distillation`."""
