@@ -19,7 +19,7 @@ import pytest
 from ibt.engine import parallel
 from ibt.engine.deadline import Deadline
 from ibt.engine.ladder import Ladder
-from ibt.engine.stages import Returns
+from ibt.engine.measure import Returns
 from ibt.pipeline import recommend as rec_module
 from ibt.signals import OverTime, Terminated, check_time, time_cap
 from ibt.tasks.catalogue import get_task
@@ -71,7 +71,7 @@ def _fake_run(monkeypatch, ladder: Ladder) -> None:
         mean = 0.0 if what.get("algo") == "random" else 100.0
         return Returns([mean + i for i in range(len(seeds))], seeds[0], [10] * len(seeds))
 
-    monkeypatch.setattr(rec_module.stages, "returns_of", returns_of)
+    monkeypatch.setattr(rec_module.measure, "returns_of", returns_of)
     monkeypatch.setattr(rec_module, "run_ladder", lambda *a, **k: ladder)
 
 

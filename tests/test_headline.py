@@ -65,7 +65,7 @@ def test_the_lead_bt_file_is_the_one_its_1000_episodes_evaluated():
     # Expect: the LunarLander BT written under figures/headline/ has the digest of the protocol
     # cache entry whose mean return and share the CSV reports
     from ibt.bt.json_io import load_json
-    from ibt.engine.stages import bt_digest
+    from ibt.engine.keys import bt_digest
 
     row = pd.read_csv(RESULTS / "headline.csv").query("task == 'LunarLander-v3'").iloc[0]
     bt = load_json(ROOT / row.json_file)

@@ -16,9 +16,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from ibt.cli import main
-from ibt.engine import budgets, parallel, stages
+from ibt.engine import budgets, distil, measure, parallel, refine, search
 from ibt.engine.agent import callable_agent, sb3_agent
 from ibt.engine.deadline import Deadline
+from ibt.engine.keys import tree_key
 from ibt.engine.ladder import Settings, bisection, run_ladder
 from ibt.pipeline.recommend import choose, parse_budget, recommend
 from tests.test_recommend import FILES, _candidate
@@ -89,13 +90,13 @@ def test_a_step_that_would_end_past_the_deadline_is_not_started(agents, tmp_path
     import ibt
 
     now = [0.0]
-    distil = stages.distil
+    original = distil.distil
 
     def slow_distil(*args, **kwargs):  # each distillation takes 8 s of the fake clock
         now[0] += 8.0
-        return distil(*args, **kwargs)
+        return original(*args, **kwargs)
 
-    monkeypatch.setattr(stages, "distil", slow_distil)
+    monkeypatch.setattr(distil, "distil", slow_distil)
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     ladder = run_ladder(cfg, _line_agent(agents), Settings(keep=1.0, rungs=(4, 8), restarts=1),
                         agent_mean=0.0, random_mean=-10.0,
@@ -116,15 +117,15 @@ def test_a_step_running_past_the_budget_and_its_grace_is_cut(agents, tmp_path, m
 
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = _line_agent(agents)
-    stages.distil(cfg, agent, 4, 0, "axis")  # cached: the ladder's first step reads it
-    distil = stages.distil
+    distil.distil(cfg, agent, 4, 0, "axis")  # cached: the ladder's first step reads it
+    original = distil.distil
 
     def slow_at_8(cfg, agent, leaves, *args, **kwargs):
         if leaves == 8:
             time.sleep(60)
-        return distil(cfg, agent, leaves, *args, **kwargs)
+        return original(cfg, agent, leaves, *args, **kwargs)
 
-    monkeypatch.setattr(stages, "distil", slow_at_8)
+    monkeypatch.setattr(distil, "distil", slow_at_8)
     monkeypatch.setattr(deadline_module, "GRACE_MIN", 0.5)
     began = time.monotonic()
     ladder = run_ladder(cfg, agent, Settings(keep=1.0, rungs=(4, 8), restarts=1),
@@ -146,14 +147,14 @@ def test_a_first_search_sure_to_be_cut_is_not_started(agents, tmp_path, monkeypa
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = _line_agent(agents)
     settings = Settings(keep=1.0, rungs=(4,), restarts=1)
-    length = stages.search_length(cfg, agent.task, 4, restarts=1, scale=1.0, n_jobs=1)
-    measure = stages.measure
+    length = search.search_length(cfg, agent.task, 4, restarts=1, scale=1.0, n_jobs=1)
+    original = measure.measure
 
     def timed_measure(cfg, agent, tree, bts, seeds):  # 10 steps an episode, 0.1 s a step
-        return replace(measure(cfg, agent, tree, bts, seeds), lengths=[10] * len(seeds),
+        return replace(original(cfg, agent, tree, bts, seeds), lengths=[10] * len(seeds),
                        seconds=1.0 * len(seeds))
 
-    monkeypatch.setattr(stages, "measure", timed_measure)
+    monkeypatch.setattr(measure, "measure", timed_measure)
     monkeypatch.setattr(deadline_module, "GRACE_MIN", 0.0)
     least = 10 * 0.1 * length  # 1 s an episode: the real search, seconds, is never cut
     short = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
@@ -183,21 +184,21 @@ def test_a_rerun_from_the_cache_times_its_last_tree_for_the_pace(agents, tmp_pat
     first = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
                        on_step=lambda done, step: "enough" if done.steps else None)
     assert first.steps == ["distil axis at 4 leaves"]  # now in the cache
-    rolled, calls = stages.rolled, []
+    rolled, calls = measure.rolled, []
 
     def timed(task, act, seeds):  # 10 steps an episode, 0.1 s a step
         calls.append(seeds)
         return replace(rolled(task, act, seeds), lengths=[10] * len(seeds),
                        seconds=1.0 * len(seeds))
 
-    monkeypatch.setattr(stages, "rolled", timed)
+    monkeypatch.setattr(measure, "rolled", timed)
     monkeypatch.setattr(deadline_module, "GRACE_MIN", 0.0)
-    length = stages.search_length(cfg, agent.task, 4, restarts=1, scale=1.0, n_jobs=1)
+    length = search.search_length(cfg, agent.task, 4, restarts=1, scale=1.0, n_jobs=1)
     least = 10 * 0.1 * length
     rerun = run_ladder(cfg, agent, settings, agent_mean=0.0, random_mean=-10.0,
                        deadline=Deadline(least / 1.2, clock=lambda: 0.0))
     assert rerun.stopped == "time" and rerun.steps == ["distil axis at 4 leaves"]
-    assert calls == [stages.held_out(cfg.final_episodes, 0)[:2]]  # the pace's rollout only
+    assert calls == [measure.held_out(cfg.final_episodes, 0)[:2]]  # the pace's rollout only
     assert f"at least {least:.0f} s expected" in rerun.notes[0], rerun.notes
 
 
@@ -214,8 +215,8 @@ def test_a_search_is_expected_to_run_its_first_round_and_its_polishes(n_jobs, re
     cfg = ibt.config("paper")
     task = resolve_task("LunarLander-v3")
     config = budgets.search_config(cfg, task, 8, 1.0)
-    choice = min(stages.RESTART_CHOICE_FACTOR * config.selection_episodes, 1_500)
-    assert stages.search_length(cfg, task, 8, restarts=restarts, scale=1.0, n_jobs=n_jobs) == (
+    choice = min(search.RESTART_CHOICE_FACTOR * config.selection_episodes, 1_500)
+    assert search.search_length(cfg, task, 8, restarts=restarts, scale=1.0, n_jobs=n_jobs) == (
         rounds * config.episodes + polishes * budgets.polish_config(cfg, config).episodes
         + (rounds + polishes) * choice)
 
@@ -227,7 +228,7 @@ def test_ctrl_c_after_the_first_candidate_leaves_a_complete_marked_report(
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(stages, "refine", interrupted)
+    monkeypatch.setattr(refine, "refine", interrupted)
     out = tmp_path / "out"
     argv = ["pipeline", "ToyLine-v0", "ppo", *LINE, "--checkpoint", str(agents / "line.zip"),
             "-o", str(out), *SMOKE]
@@ -381,23 +382,23 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
 
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = _line_agent(agents)
-    sources = [stages.distil(cfg, agent, 4, 0, "axis")]
+    sources = [distil.distil(cfg, agent, 4, 0, "axis")]
     rounds: list[float] = []
-    _, cut = stages.search(cfg, agent, sources, 4, 0, restarts=3,
+    _, cut = search.search(cfg, agent, sources, 4, 0, restarts=3,
                            next_round=lambda seconds: rounds.append(seconds) and False)
     assert cut.seeds == (0,) and len(rounds) == 1 and len(cut.choice_means) == 1
-    _, whole = stages.search(cfg, agent, sources, 4, 0, restarts=3)
+    _, whole = search.search(cfg, agent, sources, 4, 0, restarts=3)
     assert whole.seeds == (0, 1, 2) and whole.choice_means[0] == cut.choice_means[0]
     # time to spare: rounds go on past `restarts` up to `most`; without a deadline they do not
-    _, more = stages.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2, most=5,
+    _, more = search.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2, most=5,
                             env_modules=TOY_LINE,
                             next_round=lambda seconds: True, enough=math.inf)
     assert more.seeds == (0, 1, 2, 3, 4) and more.choice_means[:3] == whole.choice_means
-    _, capped = stages.search(cfg, agent, sources, 4, 0, restarts=3, most=5)
+    _, capped = search.search(cfg, agent, sources, 4, 0, restarts=3, most=5)
     assert capped.seeds == (0, 1, 2)
     # 3 restarts on 2 cores: one round of 3, not a round of 2 and a round of 1
     rounds.clear()
-    _, folded = stages.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2,
+    _, folded = search.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=2,
                               env_modules=TOY_LINE,
                               next_round=lambda seconds: rounds.append(seconds) and False)
     assert folded.seeds == (0, 1, 2) and len(rounds) == 1
@@ -411,12 +412,12 @@ def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents
     # ... and stop at the first restart that reached the target, never before the asked
     # restarts, on any number of cores
     for jobs in (1, 2):
-        _, reached = stages.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=jobs, most=5,
+        _, reached = search.search(cfg, agent, sources, 4, 0, restarts=3, n_jobs=jobs, most=5,
                                    env_modules=TOY_LINE,
                                    next_round=lambda seconds: True, enough=-math.inf)
         assert reached.seeds == (0, 1, 2)
     second = sorted(more.choice_means)[-2]  # reached first by the best or the second best
-    _, reached = stages.search(cfg, agent, sources, 4, 0, restarts=1, n_jobs=2, most=5,
+    _, reached = search.search(cfg, agent, sources, 4, 0, restarts=1, n_jobs=2, most=5,
                                env_modules=TOY_LINE,
                                next_round=lambda seconds: True, enough=second)
     assert reached.choice_means[-1] >= second > max(reached.choice_means[:-1], default=-1e9)
@@ -441,15 +442,15 @@ def test_only_the_ladders_last_step_spends_spare_time_on_restarts(agents, tmp_pa
     import ibt
 
     asked: list[int | None] = []
-    search = stages.search
+    original = search.search
 
     def recorded(*args, **kwargs):
         asked.append(kwargs.pop("most"))
         enough = kwargs.pop("enough")
         assert (enough is None) == (asked[-1] is None)  # extra restarts stop at the target
-        return search(*args, **kwargs)
+        return original(*args, **kwargs)
 
-    monkeypatch.setattr(stages, "search", recorded)
+    monkeypatch.setattr(search, "search", recorded)
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     run_ladder(cfg, _line_agent(agents), Settings(keep=1.01, rungs=rungs, restarts=2,
                                                   relational=False),
@@ -467,25 +468,25 @@ def test_the_relational_search_starts_from_the_relational_trees_too(agents, tmp_
     from ibt.tasks.catalogue import resolve_task
 
     seeded: list[list] = []
-    search = stages.search
+    original = search.search
 
     def recorded(cfg, agent, sources, *args, **kwargs):
         seeded.append(list(sources))
-        return search(cfg, agent, sources, *args, **kwargs)
+        return original(cfg, agent, sources, *args, **kwargs)
 
-    monkeypatch.setattr(stages, "search", recorded)
+    monkeypatch.setattr(search, "search", recorded)
     cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
     agent = sb3_agent(resolve_task("ToyCart-v0"), "ppo", agents / "cart.zip")
     ladder = run_ladder(cfg, agent, Settings(keep=1.01, rungs=(2, 4), restarts=1),
                         agent_mean=0.0, random_mean=-10.0)
-    distilled = {(c.leaf_limit, c.relational): c.tree for c in ladder.candidates
+    distilled = {(c.leaf_limit, c.learner): c.tree for c in ladder.candidates
                  if c.stage == "distilled"}
     first = seeded[0]  # the bisection's first probe: rung 2 of (2, 4)
     assert feature_map_of(first[0]) is None  # axis-aligned first
     assert any(feature_map_of(t) is not None for t in first)  # relational ones too
-    expected = [distilled[(rung, rel)] for rel in (False, True) for rung in (2, 4)]
-    assert [stages.tree_key(t) for t in first] == list(dict.fromkeys(
-        stages.tree_key(t) for t in expected))
+    expected = [distilled[(rung, name)] for name in ("axis", "relational") for rung in (2, 4)]
+    assert [tree_key(t) for t in first] == list(dict.fromkeys(
+        tree_key(t) for t in expected))
     assert any(c.stage == "searched" for c in ladder.candidates)
 
 

@@ -18,6 +18,7 @@ from ibt.distill.relational import (
     one_significant,
     scaled_candidate_map,
 )
+from ibt.engine.budgets import relational_search_config as search_config
 from ibt.refine.relational import augmented_task
 from ibt.refine.relational_structure import (
     compact,
@@ -28,7 +29,6 @@ from ibt.refine.relational_structure import (
     winner,
 )
 from ibt.refine.tree_arrays import TreeArrays
-from ibt.runs.relational_search import search_config
 from ibt.tasks.settings import EvolveConfig
 
 

@@ -63,32 +63,32 @@ KEY_PACKAGES = ("gymnasium", "highway-env", "numpy", "scikit-learn", "stable-bas
 #: here starting at 1 and name the function that computes it; a kind not listed here is an
 #: error.
 CODE_VERSIONS: dict[str, int] = {
-    "distill": 1,  # ibt.engine.stages.distillation: the interactive loop of ibt.distill.loop
-    "expert-eval": 1,  # ibt.runs.grid.expert_evaluation
-    "tree-eval": 1,  # ibt.runs.grid.evaluate_tree
-    "bt-eval": 1,  # ibt.runs.grid.evaluate_bt
+    "distill": 1,  # ibt.engine.distil.distillation: the interactive loop of ibt.distill.loop
+    "expert-eval": 1,  # ibt.engine.measure.expert_evaluation
+    "tree-eval": 1,  # ibt.engine.measure.evaluate_tree
+    "bt-eval": 1,  # ibt.engine.measure.evaluate_bt
     "synthesis": 2,  # ibt.engine.synthesis.synthesised: synthesis, verification, the row
-    "refine": 3,  # ibt.runs.front.refine_cached: ibt.refine.by_return.refine of a distilled tree
+    "refine": 3,  # ibt.runs.front.plus_refinement: ibt.refine.by_return.refine of a distilled tree
     "front-bt": 1,  # ibt.runs.front.bt_sizes: every synthesiser's verified BT of one tree
     "executors": 1,  # ibt.runs.grid.executors_agree
-    "evolve": 1,  # ibt.engine.stages.evolve_one: ibt.refine.structure.evolve
-    "protocol": 1,  # ibt.runs.search.protocol_evaluation: a BT on the anchors' protocol
+    "evolve": 1,  # ibt.engine.search.evolve_one: ibt.refine.structure.evolve
+    "protocol": 1,  # ibt.engine.measure.protocol_evaluation: a BT on the anchors' protocol
     "speed": 1,  # ibt.runs.grid.speed_benchmark: executors' decisions/s, per machine
-    # continuous actions: ibt.engine.stages (box-eval: ibt.runs.continuous)
+    # continuous actions: ibt.engine.distil, .commands, .refine, .measure
     "box-distill": 1,  # distillation: ibt.distill.continuous.distill_box
     "box-commands": 1,  # commands: ibt.synth.commands.choose_commands
     "box-refine": 1,  # command_refinement: ibt.refine.commands.refine_commands
-    "box-eval": 1,  # evaluate_cached: verified BTs of a command tree, final return from JSON
-    # relational tests: ibt.engine.stages, ibt.runs.front
+    "box-eval": 1,  # command_tree_evaluation: a command tree's verified BTs, return from JSON
+    # relational tests: ibt.engine.distil, ibt.engine.refine, ibt.runs.front
     "distill-rel": 1,  # distillation: the loop as imitation-bt+rel (the relational learner)
     "refine-rel": 1,  # ibt.refine.relational.refine_relational of a relational tree
-    # structure search with relational tests: ibt.engine.stages, ibt.runs.relational_search
+    # structure search with relational tests: ibt.engine.search, ibt.runs.relational_search
     "evolve-rel": 1,  # evolve_one: ibt.refine.relational_structure.evolve_relational
     "evolve-select": 1,  # evolve_rel_cached: its search chosen again on more held-out episodes
     # the pipeline: per-episode returns of a policy on a block of held-out episodes
-    "returns": 1,  # ibt.engine.stages.returns_of
-    # controller trees (linear commands): ibt.runs.controllers
-    "controller-distil": 1,  # distilled: ibt.distill.controller.distill_controller
+    "returns": 1,  # ibt.engine.measure.returns_of
+    # controller and oblique trees (linear commands, tests of up to four features)
+    "controller-distil": 1,  # distilled: ibt.distill.controller / ibt.distill.oblique
     "controller-refine": 1,  # refined: ibt.refine.controller.refine_controller
 }
 READS_ENV = "IBT_CACHE_READS"

@@ -12,10 +12,10 @@ viper           1, then 0                    resampled with p ~ max_a Q - min_a 
 imitation-bt    1 - i/N                      resampled with p ~ max_a Q - min_a Q
 ==============  ===========================  =========================================
 
-Beyond the paper, ``imitation-bt+rel`` is Imitation-BT's setting with another tree learner:
+Beyond the paper, ``imitation-bt+rel`` is Imitation-BT's setting with another tree fit:
 :func:`ibt.distill.relational.fit_relational_tree`, whose splits may be relational tests
 ``w1 * x_i + w2 * x_j <= t`` where they beat every axis-aligned split by a margin.
-A method's ``learner`` names its tree fit; the paper's four fit scikit-learn's CART.
+A method's ``fit`` is its tree fit; the paper's four fit scikit-learn's CART (:func:`fit_cart`).
 
 Each iteration rolls out the mixed policy (per step, the expert's action with probability
 beta_i, else the current tree's) in whole episodes until the iteration's label budget is spent;
@@ -42,11 +42,27 @@ from ibt.experts.expert import Expert
 from ibt.tasks.task import Task
 
 
+def fit_cart(x: np.ndarray, y: np.ndarray, config: Any, seed: int) -> DecisionTreeClassifier:
+    """scikit-learn's CART within the settings' size limits and cost-complexity pruning."""
+    return DecisionTreeClassifier(max_leaf_nodes=config.max_leaf_nodes, max_depth=config.max_depth,
+                                  ccp_alpha=config.ccp_alpha, random_state=seed).fit(x, y)
+
+
+def fit_relational(x: np.ndarray, y: np.ndarray, config: Any, seed: int) -> Any:
+    """:func:`ibt.distill.relational.fit_relational_tree` within the settings' size limits (it
+    grows to them: no cost-complexity pruning)."""
+    from ibt.distill.relational import fit_relational_tree
+
+    return fit_relational_tree(x, y, max_leaf_nodes=config.max_leaf_nodes,
+                               max_depth=config.max_depth, seed=seed)
+
+
 @dataclass(frozen=True)
 class Method:
     schedule: schedules.Schedule
     weighted: bool
-    learner: str = "cart"  # "cart" (scikit-learn) or "relational" (ibt.distill.relational)
+    fit: Callable[[np.ndarray, np.ndarray, Any, int], Any] = fit_cart  # the tree fit
+    prunes: bool = True  # the fit takes cost-complexity pruning (ccp_alpha)
 
 
 METHODS: dict[str, Method] = {
@@ -54,7 +70,8 @@ METHODS: dict[str, Method] = {
     "dagger": Method(schedules.exponential(0.5), weighted=False),
     "viper": Method(schedules.first_only(), weighted=True),
     "imitation-bt": Method(schedules.linear(), weighted=True),
-    "imitation-bt+rel": Method(schedules.linear(), weighted=True, learner="relational"),
+    "imitation-bt+rel": Method(schedules.linear(), weighted=True, fit=fit_relational,
+                               prunes=False),
 }
 
 
@@ -201,15 +218,7 @@ class ClassifierLearner:
         return expert.label(obs)  # one forward pass gives the weights too
 
     def fit(self, x: np.ndarray, y: np.ndarray) -> Any:
-        config = self.config
-        if METHODS[config.method].learner == "relational":
-            from ibt.distill.relational import fit_relational_tree
-
-            return fit_relational_tree(x, y, max_leaf_nodes=config.max_leaf_nodes,
-                                       max_depth=config.max_depth, seed=self.seed)
-        return DecisionTreeClassifier(max_leaf_nodes=config.max_leaf_nodes,
-                                      max_depth=config.max_depth, ccp_alpha=config.ccp_alpha,
-                                      random_state=self.seed).fit(x, y)
+        return METHODS[self.config.method].fit(x, y, self.config, self.seed)
 
     def signature(self, tree: Any) -> bytes:
         return tree_signature(tree)
@@ -228,9 +237,9 @@ def distill(task: Task, expert: Expert, config: DistillConfig, seed: int = 0, *,
     if expert.n_actions != task.n_actions:
         raise ValueError(f"the expert has {expert.n_actions} actions, {task.name} has "
                          f"{task.n_actions}")
-    if METHODS[config.method].learner == "relational" and config.ccp_alpha:
-        raise ValueError("the relational learner grows to max_leaf_nodes/max_depth; it has no "
-                         "cost-complexity pruning (ccp_alpha must be 0)")
+    if not METHODS[config.method].prunes and config.ccp_alpha:
+        raise ValueError(f"{config.method}'s tree fit grows to max_leaf_nodes/max_depth; it "
+                         "has no cost-complexity pruning (ccp_alpha must be 0)")
     return interactive_loop(task, expert, config, seed, ClassifierLearner(config, seed),
                             progress=progress)
 

@@ -131,6 +131,22 @@ def evolve_config(cfg: Config, task: Task, max_leaves: int, use_expert: bool = T
     return config
 
 
+def relational_search_config(cfg: Config, task: Task, max_leaves: int,
+                             search_episodes: int | None = None, leaf_rule: str = "vote"
+                             ) -> EvolveConfig:
+    """Imitation-BT+SR's search settings at ``max_leaves`` (Imitation-BT+S's,
+    :func:`evolve_config`), with the search's episode budget ``search_episodes`` where given
+    (the task's budget otherwise, and always under ``smoke``) and the expert's ``leaf_rule``
+    (:attr:`ibt.tasks.settings.EvolveConfig.leaf_rule`)."""
+    config = replace(evolve_config(cfg, task, max_leaves), leaf_rule=leaf_rule)
+    if search_episodes is not None and cfg.profile != "smoke":
+        if search_episodes < config.generation_episodes:
+            raise ValueError(f"a search budget of {search_episodes} episodes is below one "
+                             f"generation ({config.generation_episodes}); give more")
+        config = replace(config, episodes=int(search_episodes))
+    return config
+
+
 def search_config(cfg: Config, task: Task, leaves: int, scale: float) -> EvolveConfig:
     """The task's structure-search budget at ``leaves``, its episodes scaled by ``scale`` (not
     under ``smoke``), never below one generation and its pool."""
@@ -150,3 +166,14 @@ def polish_config(cfg: Config, config: EvolveConfig) -> RefineConfig:
     if cfg.profile == "smoke":
         polish = replace(polish, **SMOKE_REFINE)
     return polish
+
+
+#: a polish again (:mod:`ibt.engine.polish`) runs this many times the search's polish episodes
+AGAIN_FACTOR = 2
+
+
+def again_config(cfg: Config, task: Task, leaves: int, scale: float) -> RefineConfig:
+    """The search's polish at ``leaves``, with :data:`AGAIN_FACTOR` times its episodes: a
+    polish again."""
+    polish = polish_config(cfg, search_config(cfg, task, leaves, scale))
+    return replace(polish, episodes=AGAIN_FACTOR * polish.episodes)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from ibt.engine import stages
+from ibt.engine import measure
 
 #: a step under way when the budget runs out may finish within this share of the budget past
 #: it (at least ``GRACE_MIN`` seconds), else it is cut: LunarLander's 30-minute runs ended
@@ -64,7 +64,7 @@ class Pace:
         self.agent_length = agent_length
         self.seconds, self.steps, self.episodes = 0.0, 0, 0
 
-    def add(self, measured: stages.Returns) -> None:
+    def add(self, measured: measure.Returns) -> None:
         """Count a measurement rolled out now (one read from the cache has no wall time)."""
         if measured.seconds is not None and measured.lengths:
             self.seconds += measured.seconds

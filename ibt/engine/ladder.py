@@ -55,10 +55,13 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
-from ibt.engine import budgets, polish, stages, synthesis
+from ibt.engine import budgets, distil, measure, polish, refine, search, synthesis
 from ibt.engine.agent import Agent
 from ibt.engine.deadline import PACE_EPISODES, Deadline, Pace
+from ibt.engine.keys import leaves_of, tree_key
+from ibt.engine.learners import get_learner, learners_for, rank
 from ibt.engine.parallel import parallel_map
+from ibt.engine.search import SearchInfo
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
 from ibt.signals import STOP_SIGNALS, OverTime, stop_reason, time_cap
@@ -75,13 +78,20 @@ class Candidate:
     mean_return: float  # on the choice episodes (the tree's; every BT decides as it does)
     std_return: float
     retention: float  # random-normalised, %, on the choice episodes
-    relational: bool = False  # the tree may test w1 * x_i + w2 * x_j
-    search: stages.SearchInfo | None = None  # how a searched tree's restart was chosen
+    learner: str = "axis"  # the registered learner whose tree it is (ibt.engine.learners)
+    search: SearchInfo | None = None  # how a searched tree's restart was chosen
 
     @property
     def label(self) -> str:
-        """``distilled``, ``refined``, ``searched``, with ``, relational`` where it is."""
-        return f"{self.stage}, relational" if self.relational else self.stage
+        """``distilled``, ``refined``, ``searched``, ``polished``, with the learner's name
+        where its tests may combine features (``distilled, relational``)."""
+        entry = get_learner(self.learner)
+        return f"{self.stage}, {self.learner}" if entry.combines_features else self.stage
+
+    @property
+    def rank(self) -> int:
+        """Its learner's place in the registry (the simpler first)."""
+        return rank(self.learner)
 
     @property
     def relational_tests(self) -> int:
@@ -89,7 +99,7 @@ class Candidate:
 
     @property
     def bt_method(self) -> str:
-        return stages.smallest_bt(self.bts)
+        return synthesis.smallest_bt(self.bts)
 
     @property
     def bt(self) -> Any:
@@ -101,11 +111,13 @@ class Candidate:
 
     @property
     def leaves(self) -> int:
-        return stages.leaves_of(self.tree)
+        return leaves_of(self.tree)
 
     def row(self) -> dict[str, Any]:
         return {"leaf_limit": self.leaf_limit, "stage": self.stage, "leaves": self.leaves,
-                "relational": self.relational, "relational_tests": self.relational_tests,
+                "learner": self.learner,
+                "relational": get_learner(self.learner).combines_features,
+                "relational_tests": self.relational_tests,
                 "bt_nodes": self.bt_nodes, "bt_method": self.bt_method,
                 **{f"nodes_{m}": bt.node_count for m, bt in self.bts.items()},
                 "mean_return": self.mean_return, "retention_norm": self.retention}
@@ -133,6 +145,8 @@ class Settings:
     search: bool = True
     full: bool = False  # every rung and every step, whatever kept the target (benchmarks)
     env_modules: tuple[str, ...] = ()
+    learners: tuple[str, ...] = ()  # the learners tried (none given: every registered one that
+    # accepts the agent, ibt.engine.learners.learners_for)
 
 
 @dataclass
@@ -158,13 +172,6 @@ def keeps(c: Candidate, settings: Settings) -> bool:
     return eligible(c, settings) and c.retention >= 100 * settings.keep
 
 
-def learners_of(agent: Agent, relational: bool) -> tuple[str, ...]:
-    """``box`` on a Box task; ``axis`` then ``relational`` (two features or more) otherwise."""
-    if agent.continuous:
-        return ("box",)
-    return ("axis", "relational") if relational and agent.task.n_features >= 2 else ("axis",)
-
-
 def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: float,
                random_mean: float, deadline: Deadline | None = None,
                on_step: Callable[[Ladder, str], str | None] | None = None,
@@ -175,8 +182,8 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     ladder with that reason."""
     deadline = deadline or Deadline(None)
     out = Ladder()
-    learners = learners_of(agent, settings.relational)
-    choice = stages.held_out(cfg.final_episodes, 0)
+    learners = settings.learners or learners_for(agent, settings.relational)
+    choice = measure.held_out(cfg.final_episodes, 0)
     took: dict[str, float] = {}  # each kind of step's longest wall time (distil, refine, search)
     pace = Pace(agent_length)  # the run's tree measurements: seconds a step, steps an episode
     running: list[str] = []  # the step under way (what a signal cuts short)
@@ -196,7 +203,7 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         gated = bool(episodes) and kind not in took and deadline.seconds is not None
         if gated and not pace.steps and out.candidates:  # every measurement read from the cache
             last = out.candidates[-1]
-            pace.add(stages.rolled(agent.task, stages.policy(agent, last.tree, last.bts)[1],
+            pace.add(measure.rolled(agent.task, measure.policy(agent, last.tree, last.bts)[1],
                                    choice[:PACE_EPISODES]))
         least = pace.least(episodes) if gated else 0.0
         if least > left + deadline.grace():
@@ -222,11 +229,11 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
             out.steps.append(name)
             return None
         bts = synthesis.synthesise(cfg, agent, tree, settings.seed)
-        ret = stages.measure(cfg, agent, tree, bts, choice)
+        ret = measure.measure(cfg, agent, tree, bts, choice)
         pace.add(ret)
         out.candidates.append(Candidate(
             leaves, stage, tree, bts, ret.mean, ret.std,
-            _retention(ret.mean, agent_mean, random_mean), learner == "relational", info))
+            _retention(ret.mean, agent_mean, random_mean), learner, info))
         out.steps.append(name)
         return tree
 
@@ -285,11 +292,11 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
                 ahead = leaves == block[0] and learner == learners[0]
                 tree = step(f"distil {tag}", partial(_distil_block, cfg, agent, block, settings,
                                                      learners) if ahead else partial(
-                    stages.distil, cfg, agent, leaves, settings.seed, learner),
+                    distil.distil, cfg, agent, leaves, settings.seed, learner),
                     leaves, "distilled", learner)
                 step(f"refine {tag}", partial(_refine_block, cfg, agent, block, settings,
                                               learners, tree) if ahead else partial(
-                    stages.refine, cfg, agent, tree, settings.seed, settings.scale,
+                    refine.refine, cfg, agent, learner, tree, settings.seed, settings.scale,
                     settings.refine_episodes), leaves, "refined", learner,
                     episodes=_refine_length(cfg, agent, settings))
             if _kept_at(out, leaves, settings) and not settings.full:
@@ -309,17 +316,19 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         first = partial(_distil_block, cfg, agent, [leaves], settings, learners)
         distilled[leaves] = {
             learner: step(f"distil {learner} at {leaves} leaves", first if i == 0 else partial(
-                stages.distil, cfg, agent, leaves, settings.seed, learner),
+                distil.distil, cfg, agent, leaves, settings.seed, learner),
                 leaves, "distilled", learner)
             for i, learner in enumerate(learners)}
         if _kept_at(out, leaves, settings) and not settings.full:
             kept = leaves
             break
-    keepers = [(kept, "relational" if c.relational else "axis") for c in out.candidates
+    keepers = [(kept, c.learner) for c in out.candidates
                if c.leaf_limit == kept and keeps(c, settings)]
-    below = [r for r in settings.rungs if r in distilled and (kept is None or r < kept)]
     learner = search_learner(learners)
-    seeded = learners if learner == "relational" else ("axis",)  # the search's seed trees
+    below = [r for r in settings.rungs if r in distilled and (kept is None or r < kept)
+             and learner is not None]
+    seeded = [name for name in learners if get_learner(name).searched]  # its seed trees
+    relational = learner is not None and get_learner(learner).combines_features
     largest = max(distilled)
 
     def probe(leaves: int, last: bool = False) -> bool:
@@ -330,15 +339,15 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         final = last and kept is None and deadline.seconds is not None
         most = EXTRA_RESTARTS * settings.restarts if final else None
         step(f"search {learner} at {leaves} leaves", partial(
-            stages.search, cfg, agent, sources, leaves, settings.seed,
-            restarts=settings.restarts, relational=learner == "relational",
+            search.search, cfg, agent, sources, leaves, settings.seed,
+            restarts=settings.restarts, relational=relational,
             scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules,
             # another round, then the polishes of the best restarts (one polish measured on
             # LunarLander at 0.6-0.7 of a round; 3 sharing 2 cores about one round), must fit
             # in the time left
             next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most,
             enough=target if final else None),
-            leaves, "searched", learner, episodes=stages.search_length(
+            leaves, "searched", learner, episodes=search.search_length(
                 cfg, agent.task, leaves, restarts=settings.restarts, scale=settings.scale,
                 n_jobs=settings.n_jobs))
         info = out.candidates[-1].search
@@ -359,8 +368,8 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             keepers = []  # a smaller rung kept the target
     for leaves, name in keepers:
         step(f"refine {name} at {leaves} leaves", partial(
-            stages.refine, cfg, agent, distilled[leaves][name], settings.seed, settings.scale,
-            settings.refine_episodes), leaves, "refined", name,
+            refine.refine, cfg, agent, name, distilled[leaves][name], settings.seed,
+            settings.scale, settings.refine_episodes), leaves, "refined", name,
             episodes=_refine_length(cfg, agent, settings))
 
 
@@ -377,12 +386,13 @@ def _spare_time(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent
     if not below:
         return
     best, info = max(below, key=lambda pair: (pair[0].retention, -pair[0].bt_nodes))
-    leaves, learner, tree = best.leaf_limit, search_learner(learners), best.tree
+    leaves, learner, tree = best.leaf_limit, best.learner, best.tree
     first, width = info.seeds[-1] + 1, max(1, settings.n_jobs)  # after the restarts
 
     def again(tree: Any, seeds: tuple[int, ...]) -> Any:
         better, means = polish.polish_again(
-            cfg, agent, tree, leaves, settings.seed, seeds, relational=learner == "relational",
+            cfg, agent, tree, leaves, settings.seed, seeds,
+            relational=get_learner(learner).combines_features,
             scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules)
         out.notes.append(f"polished again at leaf limit {leaves} from seeds {list(seeds)}: "
                          f"{', '.join(f'{m:.2f}' for m in means[1:])} on the search's choice "
@@ -409,10 +419,10 @@ def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
     jobs = [(leaves, learner) for leaves in block for learner in learners]
     if settings.n_jobs > 1 and len(jobs) > 1:
         quiet = replace(cfg, progress=False)
-        parallel_map(stages.distil, [(quiet, agent, leaves, settings.seed, learner,
+        parallel_map(distil.distil, [(quiet, agent, leaves, settings.seed, learner,
                                       settings.env_modules) for leaves, learner in jobs],
                      n_jobs=min(settings.n_jobs, len(jobs)))
-    return stages.distil(cfg, agent, block[0], settings.seed, learners[0])
+    return distil.distil(cfg, agent, block[0], settings.seed, learners[0])
 
 
 def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,
@@ -422,12 +432,13 @@ def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
     jobs = [(leaves, learner) for leaves in block for learner in learners]
     if settings.n_jobs > 1 and len(jobs) > 1:
         quiet = replace(cfg, progress=False)
-        trees = [stages.distil(quiet, agent, leaves, settings.seed, learner)
+        trees = [(learner, distil.distil(quiet, agent, leaves, settings.seed, learner))
                  for leaves, learner in jobs]  # read from the cache
-        parallel_map(stages.refine, [(quiet, agent, t, settings.seed, settings.scale,
+        parallel_map(refine.refine, [(quiet, agent, learner, t, settings.seed, settings.scale,
                                       settings.refine_episodes, settings.env_modules)
-                                     for t in trees], n_jobs=min(settings.n_jobs, len(jobs)))
-    return stages.refine(cfg, agent, tree, settings.seed, settings.scale,
+                                     for learner, t in trees],
+                     n_jobs=min(settings.n_jobs, len(jobs)))
+    return refine.refine(cfg, agent, learners[0], tree, settings.seed, settings.scale,
                          settings.refine_episodes)
 
 
@@ -437,11 +448,14 @@ def _refine_length(cfg: Config, agent: Agent, settings: Settings) -> float:
                                         settings.refine_episodes, agent.continuous).episodes
 
 
-def search_learner(learners: tuple[str, ...]) -> str:
-    """The relational search where relational tests are on: its columns are the observed
+def search_learner(learners: tuple[str, ...]) -> str | None:
+    """The learner whose structure search runs (None: no learner's trees are searched): the
+    last of those whose trees seed it, in registry order, seeded with all of theirs. Where
+    relational tests are on that is the relational search: its columns are the observed
     features and the relational candidates, so it searches every axis-aligned tree too, at
     the same budget; one search a rung instead of two."""
-    return "relational" if "relational" in learners else "axis"
+    searched = [name for name in learners if get_learner(name).searched]
+    return searched[-1] if searched else None
 
 
 def bisection(rungs: list[int], probe: Callable[[int, bool], bool]) -> None:
@@ -474,15 +488,17 @@ def _kept_at(ladder: Ladder, leaves: int, settings: Settings) -> bool:
 def _distinct(trees: list[Any]) -> list[Any]:
     seen: dict[str, Any] = {}
     for tree in trees:
-        seen.setdefault(stages.tree_key(tree), tree)
+        seen.setdefault(tree_key(tree), tree)
     return list(seen.values())
 
 
 def _plan(settings: Settings, learners: tuple[str, ...], continuous: bool) -> list[str]:
     """Every step the ladder could take, in order (what a stop leaves undone)."""
     if settings.search and not continuous:
+        searched = search_learner(learners)
         return [f"distil {learner} at {leaves} leaves" for leaves in settings.rungs
                 for learner in learners] + [
-            f"search {search_learner(learners)} at {leaves} leaves" for leaves in settings.rungs]
+            f"search {searched} at {leaves} leaves" for leaves in settings.rungs
+            if searched is not None]
     return [f"{verb} {learner} at {leaves} leaves" for leaves in settings.rungs
             for learner in learners for verb in ("distil", "refine")]

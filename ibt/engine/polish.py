@@ -4,9 +4,10 @@ A search polishes each of its best restarts once (CMA-ES on the thresholds, then
 On LunarLander (PPO, 8 leaves) polishing the chosen 20-node tree a second time moved its mean
 over 1,000 fresh episodes from 236.3 to 236.1 and 239.2 (two seeds, the polish's episodes) and
 to 245.2 and 238.3 (two seeds, twice them): the polish had not converged. So time the ladder
-has left over goes to polishing again, each core one seed at :data:`AGAIN_FACTOR` times the
-polish's episodes (settings chosen after that one experiment), the tree kept only where a
-polished one beats it on the search's own choice episodes (never the recommendation's).
+has left over goes to polishing again, each core one seed at
+:data:`ibt.engine.budgets.AGAIN_FACTOR` times the polish's episodes (settings chosen after that
+one experiment, :func:`ibt.engine.budgets.again_config`), the tree kept only where a polished
+one beats it on the search's own choice episodes (never the recommendation's).
 """
 
 from __future__ import annotations
@@ -14,21 +15,15 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
-from ibt.engine import budgets, stages
+from ibt.engine import budgets, search
 from ibt.engine.agent import Agent
+from ibt.engine.keys import leaves_of
 from ibt.engine.parallel import parallel_map, processes, wall
 from ibt.evaluate.rollouts import selection_seeds
 from ibt.profiles import Config
 from ibt.tasks.task import Task
 
-AGAIN_FACTOR = 2  # a polish again runs this many times the search's polish episodes
 AGAIN_ROUNDS = 3  # at most this many rounds, each from the last one's tree
-
-
-def polish_config(cfg: Config, task: Task, leaves: int, scale: float) -> Any:
-    """The search's polish at ``leaves``, with :data:`AGAIN_FACTOR` times its episodes."""
-    polish = budgets.polish_config(cfg, budgets.search_config(cfg, task, leaves, scale))
-    return replace(polish, episodes=AGAIN_FACTOR * polish.episodes)
 
 
 def polish_again(cfg: Config, agent: Agent, tree: Any, leaves: int, seed: int,
@@ -39,20 +34,20 @@ def polish_again(cfg: Config, agent: Agent, tree: Any, leaves: int, seed: int,
     (one a core): the best polished tree where it beats ``tree`` on the search's choice
     episodes, else None; and the choice means, ``tree``'s first. Each polish is cached."""
     config = budgets.search_config(cfg, agent.task, leaves, scale)
-    choice = selection_seeds(stages.choice_episodes(config), seed,
-                             offset=stages.RESTART_CHOICE_OFFSET)
-    method = stages.SEARCHED_REL if relational else stages.SEARCHED
+    choice = selection_seeds(search.choice_episodes(config), seed,
+                             offset=search.RESTART_CHOICE_OFFSET)
+    method = search.SEARCHED_REL if relational else search.SEARCHED
     quiet = replace(cfg, progress=cfg.progress and len(seeds) == 1)
-    polish = polish_config(cfg, agent.task, leaves, scale)
-    polished = parallel_map(stages.polish_one, [(quiet, agent, s, method, tree, polish,
+    polish = budgets.again_config(cfg, agent.task, leaves, scale)
+    polished = parallel_map(search.polish_one, [(quiet, agent, s, method, tree, polish,
                                                  env_modules) for s in seeds],
                             n_jobs=processes(n_jobs, len(seeds)))
     trees = [tree, *polished]
-    means = parallel_map(stages.choice_mean, [(cfg, agent, t, choice, env_modules)
+    means = parallel_map(search.choice_mean, [(cfg, agent, t, choice, env_modules)
                                               for t in trees],
                          n_jobs=processes(n_jobs, len(trees)))
     best = max(range(1, len(trees)),
-               key=lambda k: (means[k], -stages.leaves_of(trees[k]), -k))
+               key=lambda k: (means[k], -leaves_of(trees[k]), -k))
     return (trees[best] if means[best] > means[0] else None), tuple(means)
 
 
@@ -60,5 +55,5 @@ def again_length(cfg: Config, task: Task, leaves: int, *, seeds: int, scale: flo
                  n_jobs: int) -> float:
     """The least :func:`polish_again` runs, in episodes of one core's wall time."""
     config = budgets.search_config(cfg, task, leaves, scale)
-    return (wall(seeds, n_jobs) * polish_config(cfg, task, leaves, scale).episodes
-            + wall(seeds + 1, n_jobs) * stages.choice_episodes(config))
+    return (wall(seeds, n_jobs) * budgets.again_config(cfg, task, leaves, scale).episodes
+            + wall(seeds + 1, n_jobs) * search.choice_episodes(config))

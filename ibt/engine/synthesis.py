@@ -19,11 +19,19 @@ from typing import Any
 
 from ibt.cache.store import load_or_compute
 from ibt.engine.agent import Agent
-from ibt.engine.stages import tree_key
+from ibt.engine.keys import tree_key
 from ibt.profiles import Config
 from ibt.tasks.task import Task
 
 PIPELINE_SOURCE = "pipeline"  #: the source method in the keys of the pipeline's trees
+
+
+def smallest_bt(bts: dict[str, Any]) -> str:
+    """The synthesiser whose BT has the fewest nodes (ties: the earlier one, in the order the
+    BTs were made, the registry's): the one "smallest BT" rule of the grid, the front, the
+    continuous study and the pipeline."""
+    names = list(bts)
+    return min(names, key=lambda m: (bts[m].node_count, names.index(m)))
 
 
 def command_tree_of(arrays: Any, task: Task) -> Any:

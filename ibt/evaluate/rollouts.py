@@ -42,7 +42,7 @@ def selection_seeds(n: int, run_seed: int, offset: int = 0) -> list[int]:
 
 class ReturnStats:
     """The mean and standard deviation of a record's episode ``returns`` (its one home: a
-    :class:`Rollout`, a stage's :class:`ibt.engine.stages.Returns`)."""
+    :class:`Rollout`, a stage's :class:`ibt.engine.measure.Returns`)."""
 
     returns: Any  # an array or a list of episode returns
 

@@ -36,11 +36,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from ibt.engine import stages
+from ibt.engine import measure
 from ibt.engine.agent import RANDOM_SEED, Agent
 from ibt.engine.deadline import Deadline
+from ibt.engine.keys import bt_digest
 from ibt.engine.ladder import Candidate, Ladder, Settings, eligible, run_ladder
-from ibt.engine.stages import Returns, bt_digest, held_out
+from ibt.engine.measure import Returns, held_out
+from ibt.evaluate.policies import BTPolicy
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
 from ibt.signals import OverTime, Terminated, check_time, time_cap
@@ -145,8 +147,9 @@ def pipeline_config(budget: Budget, cache_dir: Path, episodes: int | None, progr
 
 def choose(candidates: list[Candidate], keep: float, max_nodes: int | None = None
            ) -> tuple[Candidate, bool]:
-    """The smallest BT keeping ``keep`` (ties: axis-aligned, then higher retention), else the
-    best retention (ties: fewer nodes, then axis-aligned); and whether the target was met.
+    """The smallest BT keeping ``keep`` (ties: the simpler learner, the registry's order:
+    axis-aligned first; then higher retention), else the best retention (ties: fewer nodes,
+    then the simpler learner); and whether the target was met.
     Only BTs of at most ``max_nodes`` nodes count; ``ValueError`` when there is none."""
     pool = [c for c in candidates if max_nodes is None or c.bt_nodes <= max_nodes]
     if not pool:
@@ -155,8 +158,8 @@ def choose(candidates: list[Candidate], keep: float, max_nodes: int | None = Non
                          f"{smallest}); raise --max-nodes or give more --time")
     meeting = [c for c in pool if c.retention >= 100 * keep]
     if meeting:
-        return min(meeting, key=lambda c: (c.bt_nodes, c.relational, -c.retention)), True
-    return max(pool, key=lambda c: (c.retention, -c.bt_nodes, not c.relational)), False
+        return min(meeting, key=lambda c: (c.bt_nodes, c.rank, -c.retention)), True
+    return max(pool, key=lambda c: (c.retention, -c.bt_nodes, -c.rank)), False
 
 
 class DegenerateAgent(ValueError):
@@ -191,21 +194,19 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
               n_jobs: int = 1, full: bool = False, search: bool = True) -> Recommendation:
     """Climb the ladder for ``agent`` within ``time_limit`` seconds; the recommended BT (among
     those of at most ``max_nodes`` nodes) and everything measured."""
-    from ibt.evaluate.policies import BTPolicy
-
     budget = budget or Budget()
     task = agent.task
     cfg = pipeline_config(budget, Path(cache_dir), episodes, progress)
     quiet = replace(cfg, progress=False)
     deadline = Deadline(time_limit)
-    agent_key = {"algo": agent.algo, "expert_sha256": agent.digest}
-    random_key = {"algo": "random", "policy": "uniform", "rng_seed": RANDOM_SEED}
     choice, confirm = held_out(cfg.final_episodes, 0), held_out(cfg.final_episodes, 1)
+    agent_key = {"algo": agent.algo, "expert_sha256": agent.digest}  # measure.agent_returns'
+    random_key = {"algo": "random", "policy": "uniform", "rng_seed": RANDOM_SEED}  # and random's
     with within(deadline, "measuring the agent and the random policy"):
-        agent_choice = stages.returns_of(quiet, task, agent_key, checked(lambda: agent.load().act),
-                                         choice)
-        random_choice = stages.returns_of(quiet, task, random_key, checked(agent.random_act),
-                                          choice)
+        agent_choice = measure.returns_of(quiet, task, agent_key,
+                                          checked(lambda: agent.load().act), choice)
+        random_choice = measure.returns_of(quiet, task, random_key, checked(agent.random_act),
+                                           choice)
     baselines = deadline.elapsed()  # the confirmation measures them again, and the BT
     warning = agent_lead(agent_choice, random_choice, task)
     settings = Settings(keep, tuple(sorted(set(leaf_limits))), seed, relational, restarts,
@@ -256,9 +257,10 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         bt_act = lambda: BTPolicy(task, bt).act  # noqa: E731
     with within(deadline, "confirming the recommended BT"):
         confirmed = (
-            stages.returns_of(quiet, task, agent_key, checked(lambda: agent.load().act), confirm),
-            stages.returns_of(quiet, task, {"bt": bt_digest(bt)}, checked(bt_act), confirm),
-            stages.returns_of(quiet, task, random_key, checked(agent.random_act), confirm))
+            measure.returns_of(quiet, task, agent_key, checked(lambda: agent.load().act),
+                               confirm),
+            measure.returns_of(quiet, task, {"bt": bt_digest(bt)}, checked(bt_act), confirm),
+            measure.returns_of(quiet, task, random_key, checked(agent.random_act), confirm))
     return Recommendation(
         task, agent.algo, Path(agent.source), agent.digest, keep, budget, settings.rungs, seed,
         cfg.final_episodes, ladder.candidates, chosen, met,

@@ -10,37 +10,32 @@ Each step is one cache kind of :data:`ibt.cache.store.CODE_VERSIONS` with a plai
   within 1 % of expert minus random return of the tree's own, on held-out selection episodes);
 * ``box-refine``: :func:`ibt.refine.commands.refine_commands` of the command tree, with the
   task's refinement budget (its catalogue entry's ``refine``);
-* ``box-eval``: every front synthesiser's BT of a command tree (each verified against it), the
-  smallest one's JSON, and its return on the final episodes, rolled out from that JSON text.
+* ``box-eval`` (:func:`ibt.engine.measure.command_tree_evaluation`): every front
+  synthesiser's BT of a command tree (each verified against it), the smallest one's JSON, and
+  its return on the final episodes, rolled out from that JSON text.
 
 The notebook (``notebooks/10_continuous.ipynb``) calls :func:`continuous_table`.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
 from ibt.bt.model import BehaviorTree
-from ibt.cache.store import load_or_compute
-from ibt.engine import stages
 from ibt.engine.agent import committed_agent
 from ibt.engine.budgets import box_refine_config
-from ibt.engine.synthesis import command_bt
-from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
+from ibt.engine.commands import commands
+from ibt.engine.distil import distillation
+from ibt.engine.measure import command_tree_evaluation, expert_evaluation
+from ibt.engine.refine import command_refinement
+from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
 from ibt.refine.commands import CommandArrays, CommandRefinement
 from ibt.runs import anchors
-from ibt.runs.grid import expert_evaluation
-from ibt.synth.commands import (
-    CommandBTPolicy,
-)
-from ibt.synth.registry import front_synthesisers
 from ibt.tasks.catalogue import get_task
 from ibt.tasks.task import Task
 
@@ -48,63 +43,31 @@ from ibt.tasks.task import Task
 def box_distill_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                        leaves: int | None = None) -> dict[str, Any]:
     """A continuous distillation of the committed expert (the engine's stage,
-    :func:`ibt.engine.stages.distillation`): ``iterations``, ``best_index``, ``tree`` (a
+    :func:`ibt.engine.distil.distillation`): ``iterations``, ``best_index``, ``tree`` (a
     :func:`ibt.distill.continuous.regressor_doc`), ``wall_seconds``."""
     spec = get_task(task)
     overrides: dict[str, Any] = {} if leaves is None else {"max_leaf_nodes": leaves}
-    return stages.distillation(cfg, committed_agent(spec, algo, cfg.experts_dir), seed, "box",
+    return distillation(cfg, committed_agent(spec, algo, cfg.experts_dir), seed, "box",
                                method, **overrides)
 
 
 def commands_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
                     leaves: int | None = None) -> dict[str, Any]:
     """The distilled tree's leaves merged into the fewest named commands that keep its
-    held-out return (:func:`ibt.engine.stages.commands`)."""
+    held-out return (:func:`ibt.engine.commands.commands`)."""
     spec = get_task(task)
     run = box_distill_cached(cfg, spec, algo, method, seed, leaves)
-    return stages.commands(cfg, committed_agent(spec, algo, cfg.experts_dir), run["tree"], seed)
+    return commands(cfg, committed_agent(spec, algo, cfg.experts_dir), run["tree"], seed)
 
 
-def refine_cached(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
-                  leaves: int | None = None) -> CommandRefinement:
+def command_refinement_of(cfg: Config, task: str | Task, algo: str, method: str, seed: int,
+                          leaves: int | None = None) -> CommandRefinement:
     """The command tree of :func:`commands_cached`, refined by return with the task's budget
-    (:func:`ibt.engine.stages.command_refinement`)."""
+    (:func:`ibt.engine.refine.command_refinement`)."""
     spec = get_task(task)
     source = commands_cached(cfg, spec, algo, method, seed, leaves)["arrays"]
-    return stages.command_refinement(cfg, committed_agent(spec, algo, cfg.experts_dir),
-                                     CommandArrays.from_doc(source), seed,
-                                     box_refine_config(cfg, spec))
-
-
-def evaluate_cached(cfg: Config, task: str | Task, arrays: CommandArrays,
-                    episodes: int | None = None) -> dict[str, Any]:
-    """Every front synthesiser's BT of a command tree (nodes each), the smallest one's JSON
-    document, and its final-episode statistics rolled out from that JSON text (cached)."""
-    spec = get_task(task)
-    n = episodes or cfg.final_episodes
-    synthesisers = front_synthesisers()
-    params = {"task": spec.name, "tree": stages.doc_digest(arrays.to_doc()), "episodes": n,
-              "synthesisers": list(synthesisers)}
-
-    def compute() -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        bts = {}
-        for method in synthesisers:
-            bts[method] = command_bt(arrays, spec, method)
-            out[f"nodes_{method.replace('-', '_')}"] = bts[method].node_count
-        smallest = stages.smallest_bt(bts)
-        text = bts[smallest].to_json()
-        policy = CommandBTPolicy(spec, BehaviorTree.from_json(text))
-        result = rollout(spec, policy.act, final_seeds(n))
-        returns = np.asarray(result.returns)
-        out.update({"bt_method": smallest, "bt_nodes": bts[smallest].node_count,
-                    "bt": json.loads(text), "episodes": n, "mean_return": float(returns.mean()),
-                    "std_return": float(returns.std()),
-                    "share_200": float((returns >= 200).mean())})
-        return out
-
-    return load_or_compute("box-eval", params, compute, cache_dir=cfg.cache_dir, codec="json",
-                           refresh=cfg.refresh)
+    return command_refinement(cfg, committed_agent(spec, algo, cfg.experts_dir),
+                              CommandArrays.from_doc(source), seed, box_refine_config(cfg, spec))
 
 
 @dataclass(frozen=True)
@@ -119,12 +82,6 @@ class BoxPoint:
     refined: bool
 
 
-def random_return(cfg: Config, task: Task) -> float:
-    """The random policy's mean return (``random.csv`` of the experts' folder)."""
-    table = pd.read_csv(cfg.experts_dir / "random.csv")
-    return float(table.loc[table["task"] == task.name, "mean_return"].iloc[0])
-
-
 def point_arrays(cfg: Config, point: BoxPoint) -> tuple[CommandArrays, dict[str, Any]]:
     """A point's command tree and what made it (commands chosen, refinement)."""
     spec = get_task(point.task)
@@ -132,7 +89,8 @@ def point_arrays(cfg: Config, point: BoxPoint) -> tuple[CommandArrays, dict[str,
     info: dict[str, Any] = {"commands_tree_return": chosen["rows"][-1]["tree_return"]}
     if not point.refined:
         return CommandArrays.from_doc(chosen["arrays"]), info
-    record = refine_cached(cfg, spec, point.algo, point.method, point.seed, point.leaves)
+    record = command_refinement_of(cfg, spec, point.algo, point.method, point.seed,
+                                   point.leaves)
     info.update({"refine_episodes": record.episodes, "refine_cpu_s": record.cpu_seconds,
                  "refine_steps": record.steps,
                  "selection_before": record.selection_means[0],
@@ -144,9 +102,9 @@ def point_row(cfg: Config, point: BoxPoint, episodes: int | None = None) -> dict
     """One row of the continuous table: sizes, commands, return and retention."""
     spec = get_task(point.task)
     arrays, info = point_arrays(cfg, point)
-    result = evaluate_cached(cfg, spec, arrays, episodes)
+    result = command_tree_evaluation(cfg, spec, arrays, episodes)
     expert = expert_evaluation(cfg, spec, point.algo)["mean_return"]
-    rand = random_return(cfg, spec)
+    rand = spec.random_return(cfg.experts_dir)
     return {"task": point.task, "algo": point.algo, "method": point.method, "seed": point.seed,
             "leaf_limit": point.leaves or spec.budget.max_leaf_nodes, "refined": point.refined,
             "leaves": arrays.n_leaves, "commands": arrays.n_commands,
@@ -176,7 +134,7 @@ def sweep_points(tasks: dict[str, tuple[str, str]], leaf_limits: list[int], seed
 def point_bt(cfg: Config, point: BoxPoint) -> BehaviorTree:
     """A point's smallest verified BT (from the ``box-eval`` cache)."""
     arrays, _ = point_arrays(cfg, point)
-    return BehaviorTree.from_dict(evaluate_cached(cfg, get_task(point.task), arrays)["bt"])
+    return BehaviorTree.from_dict(command_tree_evaluation(cfg, get_task(point.task), arrays)["bt"])
 
 
 #: The done-when bars, set before the runs: (task, most leaves, least mean return).

@@ -178,7 +178,7 @@ def controller_row(task: Task, algo: str, leaves: int, seed: int, cfg: Config,
                    episodes: int) -> tuple[dict[str, Any], Any]:
     """One refined controller's row and its verified BT, measured on ``episodes`` final
     episodes."""
-    from ibt.engine.stages import bt_digest
+    from ibt.engine.keys import bt_digest
     from ibt.evaluate.policies import BTPolicy
     from ibt.synth.commands import CommandBTPolicy
 

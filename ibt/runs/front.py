@@ -35,15 +35,16 @@ import pandas as pd
 from tqdm import tqdm
 
 from ibt.bt.model import BehaviorTree
-from ibt.cache.store import load_or_compute
+from ibt.cache.store import load_or_compute, tree_digest
 from ibt.distill.loop import Distillation
 from ibt.engine.budgets import refine_config
-from ibt.engine.stages import refinement_cached, smallest_bt
+from ibt.engine.measure import evaluate_bt, evaluate_tree, expert_evaluation
+from ibt.engine.refine import refinement_cached
+from ibt.engine.synthesis import smallest_bt
 from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.profiles import Config
 from ibt.refine.by_return import RefineConfig, Refinement
 from ibt.runs import anchors
-from ibt.runs.grid import evaluate_bt, evaluate_tree, expert_evaluation, tree_digest
 from ibt.runs.steps import distill_cached
 from ibt.synth.registry import front_synthesisers, get_synthesiser
 from ibt.tasks.catalogue import TASKS, get_task
@@ -102,8 +103,9 @@ def ranked_sources(cfg: Config, task: str | Task, algo: str, seed: int
     return sorted(runs, key=lambda mr: -mr[1].iterations[mr[1].best_index]["selection_mean"])
 
 
-def refine_cached(cfg: Config, task: str | Task, algo: str, seed: int, source_method: str, *,
-                  max_leaves: int | None, config: RefineConfig | None = None) -> Refinement:
+def plus_refinement(cfg: Config, task: str | Task, algo: str, seed: int, source_method: str,
+                    *, max_leaves: int | None, config: RefineConfig | None = None
+                    ) -> Refinement:
     """Refine one source run's tree, pruned to ``max_leaves`` (cached on tree and settings).
 
     ``max_leaves`` None refines without forcing the tree smaller.
@@ -137,17 +139,12 @@ def plus_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: in
     held-out selection episodes (the same episodes for every source)."""
     task = get_task(task)
     ranked = ranked_sources(cfg, task, algo, seed)
-    refined = [(m, refine_cached(cfg, task, algo, seed, m, max_leaves=max_leaves))
+    refined = [(m, plus_refinement(cfg, task, algo, seed, m, max_leaves=max_leaves))
                for m, _ in ranked[:task.refine_sources]]
     method, chosen = max(refined, key=lambda mr: mr[1].selection_means[mr[1].best_index])
     return PlusResult(method, chosen, sum(run.wall_seconds for _, run in ranked),
                       sum(r.cpu_seconds for _, r in refined),
                       sum(r.episodes for _, r in refined), sum(r.steps for _, r in refined))
-
-
-def synthesise(tree: Any, task: Task, method: str) -> BehaviorTree:
-    """One verified BT of ``tree`` (every synthesiser verifies; raises if it disagrees)."""
-    return get_synthesiser(method)(tree, task).bt
 
 
 def bt_sizes(cfg: Config, task: str | Task, tree: Any) -> dict[str, Any]:
@@ -165,7 +162,7 @@ def bt_sizes(cfg: Config, task: str | Task, tree: Any) -> dict[str, Any]:
         bts = {}
         for method in synthesisers:
             start = time.perf_counter()
-            bt = synthesise(tree, spec, method)
+            bt = get_synthesiser(method)(tree, spec).bt  # verified: raises if it disagrees
             key = method.replace("-", "_")
             out[f"nodes_{key}"] = bt.node_count
             out[f"conditions_{key}"] = bt.node_types()["condition"]
@@ -276,7 +273,7 @@ def anchor_table(cfg: Config, experts: list[tuple[str, str]]) -> pd.DataFrame:
             if task != anchor.task:
                 continue
             spec = get_task(task)
-            expert = expert_evaluation(cfg, task, algo)["mean_return"]
+            expert = expert_evaluation(cfg, spec, algo)["mean_return"]
             rows.append({"source": anchor.source, "task": task, "expert": algo,
                          "tree_nodes": anchor.nodes, "tree_leaves": anchor.leaves,
                          "mean_return": anchor.mean_return,
@@ -297,7 +294,7 @@ def committed_bt(cfg: Config, task: str, algo: str, seeds: list[int], leaves: in
     best = max(rows, key=lambda r: (r["mean_return"], -r["bt_nodes"], -r["seed"]))
     sizes = bt_sizes(cfg, task, plus_run(cfg, task, algo, int(best["seed"]), leaves).tree)
     bt = BehaviorTree.from_dict(sizes["bt"])
-    rollout = evaluate_bt(cfg, task, bt)
+    rollout = evaluate_bt(cfg, get_task(task), bt)
     return {"bt": bt, "seed": int(best["seed"]), "mean_return": rollout["mean_return"],
             "matches_tree": bool(np.isclose(rollout["mean_return"], best["mean_return"]))}
 

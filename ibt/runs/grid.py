@@ -20,21 +20,14 @@ import pandas as pd
 from joblib import Parallel, delayed, parallel_config
 from tqdm import tqdm
 
-from ibt.cache.store import load_or_compute
+from ibt.cache.store import load_or_compute, tree_digest
 from ibt.distill.loop import METHODS
 from ibt.distill.schedules import Schedule
-from ibt.engine.stages import bt_digest, tree_digest
-from ibt.evaluate.policies import TreePolicy
-from ibt.evaluate.rollouts import (
-    episode_metrics,
-    final_seeds,
-    retention_norm,
-    retention_raw,
-    rollout,
-)
+from ibt.engine import measure
+from ibt.engine.keys import bt_digest
+from ibt.evaluate.rollouts import retention_norm, retention_raw
 from ibt.experts.expert import expert_path, load_expert
 from ibt.experts.training import expert_statuses
-from ibt.files import file_digest
 from ibt.profiles import Config
 from ibt.report.stats import bootstrap_ci, node_table, retention_table, summarise  # noqa: F401
 from ibt.runs.steps import distill_cached
@@ -91,40 +84,18 @@ def uncached(cfg: Config, cells: Iterable[Cell]) -> list[Cell]:
 
 
 def expert_evaluation(cfg: Config, task: str | Task, algo: str) -> dict[str, float]:
-    """The expert's return on the profile's final-evaluation episodes (cached)."""
-    task = get_task(task)
-    params = {"task": task.name, "algo": algo, "episodes": cfg.final_episodes,
-              "expert_sha256": file_digest(expert_path(task, algo, cfg.experts_dir))}
-
-    def compute() -> dict[str, float]:
-        expert = load_expert(task, algo, expert_path(task, algo, cfg.experts_dir))
-        result = rollout(task, expert.act, final_seeds(cfg.final_episodes))
-        return {"mean_return": result.mean, "std_return": result.std}
-
-    return load_or_compute("expert-eval", params, compute, cache_dir=cfg.cache_dir,
-                           codec="json", refresh=cfg.refresh)
-
-
-def _final_metrics(cfg: Config, spec: Any, act: Any) -> dict[str, float]:
-    """Return statistics and task outcome rates over the profile's final episodes."""
-    result = rollout(spec, act, final_seeds(cfg.final_episodes))
-    return {"mean_return": result.mean, "std_return": result.std, **episode_metrics(spec, result)}
+    """:func:`ibt.engine.measure.expert_evaluation` of a task named or given (the notebooks')."""
+    return measure.expert_evaluation(cfg, get_task(task), algo)
 
 
 def evaluate_tree(cfg: Config, task: str | Task, tree: Any) -> dict[str, float]:
-    """A decision tree's final evaluation (cached on the tree's exact structure)."""
-    spec = get_task(task)
-    return _final_evaluation(cfg, spec, "tree-eval", {"tree": tree_digest(tree)},
-                             lambda: TreePolicy(spec, tree).act)
+    """:func:`ibt.engine.measure.evaluate_tree` of a task named or given (the notebooks')."""
+    return measure.evaluate_tree(cfg, get_task(task), tree)
 
 
-def _final_evaluation(cfg: Config, spec: Task, kind: str, what: dict[str, str], act: Any
-                      ) -> dict[str, float]:
-    """``act()``'s policy on the profile's final episodes, cached as ``kind`` under ``what``
-    (a tree's or a BT's digest)."""
-    params = {"task": spec.name, "episodes": cfg.final_episodes, **what}
-    return load_or_compute(kind, params, lambda: _final_metrics(cfg, spec, act()),
-                           cache_dir=cfg.cache_dir, codec="json", refresh=cfg.refresh)
+def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
+    """:func:`ibt.engine.measure.evaluate_bt` of a task named or given (the notebooks')."""
+    return measure.evaluate_bt(cfg, get_task(task), bt)
 
 
 def run_cell(cfg: Config, cell: Cell) -> dict[str, Any]:
@@ -246,15 +217,6 @@ def synthesize_run(cfg: Config, task: str | Task, algo: str, method: str, seed: 
     spec = get_task(task)
     tree = distill_cached(cfg, spec, algo, source_method, seed, **overrides).best_tree
     return synthesised(cfg, spec, algo, method, seed, source_method, tree, analysis=True)
-
-
-def evaluate_bt(cfg: Config, task: str | Task, bt: Any) -> dict[str, float]:
-    """A BT's final evaluation, rolled out in the environment (cached on its JSON)."""
-    from ibt.evaluate.policies import BTPolicy
-
-    spec = get_task(task)
-    return _final_evaluation(cfg, spec, "bt-eval", {"bt": bt_digest(bt)},
-                             lambda: BTPolicy(spec, bt).act)
 
 
 def executors_agree(cfg: Config, task: str | Task, bt: Any, tree: Any, n_states: int = 100_000

@@ -37,15 +37,15 @@ def distill_rel(cfg: Config, task: Task, algo: str, seed: int, leaves: int | Non
                 checkpoint: str | Path | None = None) -> Distillation:
     """An ``imitation-bt+rel`` distillation at a leaf limit (``None``: the task's budget) of
     the committed expert or ``checkpoint``: the engine's stage
-    (:func:`ibt.engine.stages.distillation`), cached on the checkpoint's digest, the
+    (:func:`ibt.engine.distil.distillation`), cached on the checkpoint's digest, the
     loop's settings and the learner's."""
-    from ibt.engine import stages
     from ibt.engine.agent import committed_agent, sb3_agent
+    from ibt.engine.distil import distillation
 
     agent = (committed_agent(task, algo, cfg.experts_dir) if checkpoint is None
              else sb3_agent(task, algo, checkpoint, check=False))
     overrides: dict[str, Any] = {} if leaves is None else {"max_leaf_nodes": leaves}
-    return stages.distillation(cfg, agent, seed, "relational", **overrides)
+    return distillation(cfg, agent, seed, "relational", **overrides)
 
 
 def refined_tree(cfg: Config, task: Task, algo: str, seed: int, leaves: int | None,
@@ -53,7 +53,7 @@ def refined_tree(cfg: Config, task: Task, algo: str, seed: int, leaves: int | No
     """``imitation-bt+rel+``: the distilled relational tree at ``leaves``, refined by return
     with the task's budget (:func:`ibt.engine.budgets.refine_config`, pruned to ``leaves``)."""
     from ibt.engine.budgets import refine_config
-    from ibt.engine.stages import refinement_cached
+    from ibt.engine.refine import refinement_cached
     from ibt.refine.relational import best_tree
 
     tree = distill_rel(cfg, task, algo, seed, leaves).best_tree
@@ -69,9 +69,9 @@ def relational_row(cfg: Config, task: str | Task, algo: str, seed: int, leaves: 
     smallest verified BT of the front's synthesisers), relational tests (of that BT and of
     the tree), final mean return and retention (the profile's final episodes)."""
     from ibt.distill.relational import relational_tests
+    from ibt.engine.measure import evaluate_tree, expert_evaluation
     from ibt.evaluate.rollouts import retention_norm, retention_raw
     from ibt.runs.front import bt_sizes
-    from ibt.runs.grid import evaluate_tree, expert_evaluation
 
     spec = get_task(task)
     run = distill_rel(cfg, spec, algo, seed, leaves)

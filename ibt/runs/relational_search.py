@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from ibt.cache.store import load_or_compute
-from ibt.engine.budgets import evolve_config, polish_config
+from ibt.engine.budgets import evolve_config, polish_config, relational_search_config
 from ibt.profiles import Config
 from ibt.refine.structure import Evolution
 from ibt.runs.search import StructureResult, seed_trees
@@ -47,20 +47,6 @@ def search_seeds(cfg: Config, task: Task, algo: str, seed: int,
             *(plus_run(cfg, task, algo, seed, limit).tree for limit in plus_seeds)]
 
 
-def search_config(cfg: Config, task: Task, max_leaves: int,
-                  search_episodes: int | None = None, leaf_rule: str = "vote") -> EvolveConfig:
-    """Imitation-BT+S's search settings at ``max_leaves``, with the search's episode budget
-    ``search_episodes`` where given (the task's budget otherwise, and always under ``smoke``)
-    and the expert's ``leaf_rule`` (:attr:`ibt.tasks.settings.EvolveConfig.leaf_rule`)."""
-    config = replace(evolve_config(cfg, task, max_leaves), leaf_rule=leaf_rule)
-    if search_episodes is not None and cfg.profile != "smoke":
-        if search_episodes < config.generation_episodes:
-            raise ValueError(f"a search budget of {search_episodes} episodes is below one "
-                             f"generation ({config.generation_episodes}); give more")
-        config = replace(config, episodes=int(search_episodes))
-    return config
-
-
 def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
                       plus_seeds: Sequence[int] = (), search_episodes: int | None = None,
                       scaled_weights: bool = False, leaf_rule: str = "vote",
@@ -72,11 +58,11 @@ def evolve_rel_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_l
     finalists where not the task's (the same search, chosen again:
     :func:`ibt.refine.structure.reselect`, cached as ``evolve-select``; not under ``smoke``)."""
     from ibt.engine.agent import committed_agent
-    from ibt.engine.stages import evolve_key, evolve_one
+    from ibt.engine.search import evolve_key, evolve_one
     from ibt.refine.relational_structure import reselect_relational
 
     spec = get_task(task)
-    config = search_config(cfg, spec, max_leaves, search_episodes, leaf_rule)
+    config = relational_search_config(cfg, spec, max_leaves, search_episodes, leaf_rule)
     sources = search_seeds(cfg, spec, algo, seed, plus_seeds)
     agent = committed_agent(spec, algo, cfg.experts_dir)
     record = evolve_one(cfg, agent, sources, config, seed, relational=True,
@@ -124,7 +110,7 @@ def relational_search_run(cfg: Config, task: str | Task, algo: str, seed: int,
     ``scaled_weights``: candidate weights scaled to each pair's spreads; ``leaf_rule``: how the
     expert's help picks leaf actions ("vote" or "score"); ``selection_episodes``: the held-out
     episodes of the search's and the polish's choices where not the task's."""
-    from ibt.engine.stages import refinement_cached
+    from ibt.engine.refine import refinement_cached
     from ibt.refine.relational_structure import winner
 
     spec = get_task(task)
@@ -149,16 +135,15 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
     from its JSON, the share at or above ``threshold``), and what the run cost."""
     from ibt.bt.model import BehaviorTree
     from ibt.distill.relational import relational_tests
+    from ibt.engine.measure import evaluate_tree, expert_evaluation, protocol_evaluation
     from ibt.evaluate.rollouts import retention_norm
     from ibt.runs.front import bar_of, bt_sizes
-    from ibt.runs.grid import evaluate_tree, expert_evaluation
-    from ibt.runs.search import protocol_evaluation
 
     spec = get_task(task)
     found = relational_search_run(cfg, spec, algo, seed, max_leaves, plus_seeds,
                                   search_episodes, scaled_weights, leaf_rule,
                                   selection_episodes)
-    config = search_config(cfg, spec, max_leaves, search_episodes)
+    config = relational_search_config(cfg, spec, max_leaves, search_episodes)
     budget, choice = config.episodes, chosen_on(cfg, config, selection_episodes)
     tree = found.tree
     sizes = bt_sizes(cfg, spec, tree)
@@ -175,9 +160,10 @@ def relational_search_row(cfg: Config, task: str | Task, algo: str, seed: int,
             "leaf_rule": leaf_rule,
             # the choices' held-out episodes where not the task's (None: the task's)
             "selection_episodes": None if choice == config.selection_episodes else choice,
-            "default_setting": (not plus_seeds and not scaled_weights and leaf_rule == "vote"
-                                and budget == search_config(cfg, spec, max_leaves).episodes
-                                and choice == config.selection_episodes),
+            "default_setting": (
+                not plus_seeds and not scaled_weights and leaf_rule == "vote"
+                and budget == relational_search_config(cfg, spec, max_leaves).episodes
+                and choice == config.selection_episodes),
             "tree_leaves": int(tree.get_n_leaves()),
             "tree_relational_tests": relational_tests(tree), "bt_nodes": bt.node_count,
             "bt_method": sizes["bt_method"], "relational_tests": bt.relational_count,
@@ -217,4 +203,4 @@ def relational_search_table(cfg: Config, experts: list[tuple[str, str]], seeds: 
 
 __all__ = ["METHOD", "RelationalSearchResult", "chosen_on", "evolve_rel_cached",
            "relational_search_row", "relational_search_run", "relational_search_table",
-           "search_config", "search_seeds"]
+           "search_seeds"]

@@ -13,7 +13,8 @@ Beyond the paper. For one task, expert, seed and leaf limit:
 
 Its budget is the task's catalogue entry (``Task.evolve``), in episodes; a run records its CPU
 seconds and environment steps. The anchors' protocol, 1,000 final episodes of the committed BT
-with the share of episodes at or above a return, is :func:`protocol_evaluation`.
+with the share of episodes at or above a return, is
+:func:`ibt.engine.measure.protocol_evaluation`.
 """
 
 from __future__ import annotations
@@ -21,14 +22,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from ibt.bt.model import BehaviorTree
-from ibt.cache.store import load_or_compute
 from ibt.engine.agent import committed_agent
 from ibt.engine.budgets import evolve_config, polish_config
-from ibt.engine.stages import bt_digest, evolve_one, refinement_cached
-from ibt.evaluate.rollouts import final_seeds, retention_norm, rollout
+from ibt.engine.measure import evaluate_tree, expert_evaluation, protocol_evaluation
+from ibt.engine.refine import refinement_cached
+from ibt.engine.search import evolve_one
+from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
 from ibt.refine.by_return import Refinement
 from ibt.refine.structure import Evolution
@@ -51,7 +51,7 @@ def seed_trees(cfg: Config, task: Task, algo: str, seed: int) -> list[Any]:
 def evolve_cached(cfg: Config, task: str | Task, algo: str, seed: int, max_leaves: int,
                   use_expert: bool = True) -> Evolution:
     """The structure search of one run: the engine's stage
-    (:func:`ibt.engine.stages.evolve_one`) from this study's seed trees, cached on them and
+    (:func:`ibt.engine.search.evolve_one`) from this study's seed trees, cached on them and
     its settings."""
     spec = get_task(task)
     config = evolve_config(cfg, spec, max_leaves, use_expert)
@@ -95,28 +95,6 @@ def structure_run(cfg: Config, task: str | Task, algo: str, seed: int, max_leave
                                                         evolution.best_tree, polish))
 
 
-def protocol_evaluation(cfg: Config, task: str | Task, bt: BehaviorTree, episodes: int = 1000,
-                        threshold: float | None = 200.0) -> dict[str, Any]:
-    """The anchors' protocol: the BT rolled out from its own JSON on ``episodes`` final
-    episodes (seeds disjoint from every training, refinement and selection seed): mean,
-    standard deviation and the share of episodes at or above ``threshold`` (cached)."""
-    spec = get_task(task)
-    bt = BehaviorTree.from_json(bt.to_json())  # exactly what the committed file holds
-    params = {"task": spec.name, "episodes": episodes, "threshold": threshold,
-              "bt": bt_digest(bt)}
-
-    def compute() -> dict[str, Any]:
-        from ibt.evaluate.policies import BTPolicy
-
-        result = rollout(spec, BTPolicy(spec, bt).act, final_seeds(episodes))
-        share = None if threshold is None else float(np.mean(result.returns >= threshold))
-        return {"episodes": episodes, "mean_return": result.mean, "std_return": result.std,
-                "share_at_threshold": share, "threshold": threshold}
-
-    return load_or_compute("protocol", params, compute, cache_dir=cfg.cache_dir, codec="json",
-                           refresh=cfg.refresh)
-
-
 def structure_points(experts: dict[str, list[str]], leaves: dict[str, list[int]],
                      seeds: list[int]) -> list[Any]:
     """Imitation-BT+S for each task's experts at each of its leaf limits (front points)."""
@@ -141,7 +119,8 @@ def protocol_table(cfg: Config, table: Any, threshold: dict[str, float] | None =
     for run in table[table["method"] == STRUCTURE].itertuples(index=False):
         found = structure_run(cfg, run.task, run.expert, int(run.seed), int(run.max_leaf_nodes))
         bt = BehaviorTree.from_dict(bt_sizes(cfg, run.task, found.tree)["bt"])
-        result = protocol_evaluation(cfg, run.task, bt, episodes, threshold.get(run.task))
+        result = protocol_evaluation(cfg, get_task(run.task), bt, episodes,
+                                     threshold.get(run.task))
         rows.append({"task": run.task, "expert": run.expert, "max_leaf_nodes": run.max_leaf_nodes,
                      "seed": run.seed, "tree_leaves": run.tree_leaves, "bt_nodes": bt.node_count,
                      "episodes": result["episodes"], "mean_return": result["mean_return"],
@@ -164,7 +143,6 @@ def expert_help_table(cfg: Config, experts: dict[str, list[str]], leaves: dict[s
     import pandas as pd
 
     from ibt.runs.front import bt_sizes
-    from ibt.runs.grid import evaluate_tree, expert_evaluation
 
     rows = []
     for task, algos in experts.items():

@@ -15,14 +15,13 @@ import pandas as pd
 from ibt.bt.json_io import save_json
 from ibt.bt.model import BehaviorTree
 from ibt.distill.loop import Distillation, DistillConfig
-from ibt.engine import budgets, stages
+from ibt.engine import budgets
 from ibt.engine.agent import committed_agent
+from ibt.engine.distil import distill_key, distillation
+from ibt.engine.measure import final_metrics
 from ibt.evaluate.rollouts import (
-    episode_metrics,
-    final_seeds,
     retention_norm,
     retention_raw,
-    rollout,
 )
 from ibt.experts import expert as experts
 from ibt.experts.expert import Expert
@@ -42,17 +41,17 @@ def distill_params(cfg: Config, task: str | Task, algo: str, method: str = "imit
                    seed: int = 0, **overrides: Any) -> dict[str, Any]:
     """The cache parameters of one distillation run (see :func:`distill_cached`)."""
     agent = committed_agent(get_task(task), algo, cfg.experts_dir)
-    return stages.distill_key(cfg, agent, seed, "axis", method, **overrides)[1]
+    return distill_key(cfg, agent, seed, "axis", method, **overrides)[1]
 
 
 def distill_cached(cfg: Config, task: str | Task, algo: str, method: str = "imitation-bt",
                    seed: int = 0, **overrides: Any) -> Distillation:
     """A distillation run of the committed expert (the engine's stage,
-    :func:`ibt.engine.stages.distillation`), from the cache when the same expert,
+    :func:`ibt.engine.distil.distillation`), from the cache when the same expert,
     settings and seed ran before: the key holds the checkpoint's digest, so a retrained expert
     is a cache miss."""
     agent = committed_agent(get_task(task), algo, cfg.experts_dir)
-    return stages.distillation(cfg, agent, seed, "axis", method, **overrides)
+    return distillation(cfg, agent, seed, "axis", method, **overrides)
 
 
 def load_expert(task: str | Task, algo: str, path: str | Path | None = None) -> Expert:
@@ -90,10 +89,8 @@ def compare_policies(cfg: Config, task: str | Task, policies: dict[str, Any],
         raise KeyError(f"reference policy {reference!r} is not among {list(policies)}")
     rows = []
     for name, policy in policies.items():
-        result = rollout(task_obj, policy.act, final_seeds(cfg.final_episodes))
-        row = {"policy": name, "episodes": len(result.returns),
-               "mean_return": result.mean, "std_return": result.std}
-        row.update(episode_metrics(task_obj, result))
+        row = {"policy": name, "episodes": cfg.final_episodes,
+               **final_metrics(task_obj, policy.act, cfg.final_episodes)}
         row["nodes"] = _nodes(policy)
         rows.append(row)
     frame = pd.DataFrame(rows).set_index("policy")

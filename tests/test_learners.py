@@ -1,0 +1,109 @@
+"""The learner registry: which learners the ladder offers an agent, and a learner registered
+from outside the engine tried by the ladder like the built-in ones."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from ibt.engine import learners
+from ibt.engine.learners import (
+    BOX,
+    DISCRETE,
+    LEARNERS,
+    Learner,
+    get_learner,
+    learners_for,
+    loop_fit,
+    rank,
+)
+
+
+def _agent(continuous: bool, n_features: int) -> Any:
+    return SimpleNamespace(continuous=continuous, task=SimpleNamespace(n_features=n_features))
+
+
+def test_the_built_in_learners_in_the_ladders_order_with_their_kinds():
+    assert list(LEARNERS)[:3] == ["axis", "relational", "box"]
+    assert [(get_learner(n).actions, get_learner(n).kind) for n in ("axis", "relational", "box")] \
+        == [(DISCRETE, "distill"), (DISCRETE, "distill-rel"), (BOX, "box-distill")]
+    assert rank("axis") < rank("relational")
+
+
+@pytest.mark.parametrize(("continuous", "n_features", "combined", "offered"), [
+    (False, 4, True, ("axis", "relational")),
+    (False, 4, False, ("axis",)),  # relational tests off
+    (False, 1, True, ("axis",)),  # one feature: nothing to combine
+    (True, 3, True, ("box",)),
+])
+def test_an_agent_is_offered_the_learners_that_accept_its_actions(continuous, n_features,
+                                                                   combined, offered):
+    assert learners_for(_agent(continuous, n_features), combined) == offered
+
+
+def test_an_unknown_learner_is_named_with_the_known_ones():
+    with pytest.raises(ValueError, match=r"unknown learner 'cart'.*axis, relational, box"):
+        get_learner("cart")
+
+
+class Stumps:
+    """A toy learner's tree fit: the loop's CART, at most two levels deep (the interactive
+    loop's :class:`ibt.distill.loop.Learner`, as a new learner's module would give)."""
+
+    def __init__(self, config: Any, seed: int) -> None:
+        from ibt.distill.loop import ClassifierLearner
+
+        self.base, self.config, self.seed = ClassifierLearner(config, seed), config, seed
+
+    def __getattr__(self, name: str) -> Any:  # label, signature, predictor, mix: CART's
+        return getattr(self.base, name)
+
+    def fit(self, x: Any, y: Any) -> Any:
+        from sklearn.tree import DecisionTreeClassifier
+
+        return DecisionTreeClassifier(max_depth=2, max_leaf_nodes=self.config.max_leaf_nodes,
+                                      random_state=self.seed).fit(x, y)
+
+
+def _stump_settings(cfg: Any, agent: Any, method: str | None, overrides: dict[str, Any]) -> Any:
+    from ibt.engine import budgets
+
+    return budgets.distill_config(cfg, agent.task, method or "imitation-bt", **overrides)
+
+
+def _stump_refine(cfg: Any, agent: Any, tree: Any, seed: int, scale: float,
+                  episodes: int | None) -> Any:
+    return tree  # a toy: its tree as distilled
+
+
+STUMP = Learner("stump", DISCRETE, "stump-distill", "distillation", _stump_settings,
+                loop_fit(Stumps), lambda cfg, agent, run, seed: run.best_tree, _stump_refine)
+
+
+def test_a_learner_registered_outside_the_engine_is_tried_by_the_ladder(agents, tmp_path,
+                                                                       monkeypatch):
+    """The recipe of docs/ARCHITECTURE.md: a learner (here in this test), its registry entry and
+    its cache kind; the ladder then distils and refines with it at every rung, after the
+    built-in ones, and its distillation is cached under its own kind."""
+    import ibt
+    from ibt.cache import store
+    from ibt.engine.agent import sb3_agent
+    from ibt.engine.ladder import Settings, run_ladder
+    from ibt.tasks.catalogue import resolve_task
+
+    monkeypatch.setitem(store.CODE_VERSIONS, "stump-distill", 1)
+    monkeypatch.setattr(learners, "LEARNERS", dict(LEARNERS))  # the registry as it was, after
+    learners.register_learner(STUMP)
+    agent = sb3_agent(resolve_task("ToyLine-v0"), "ppo", agents / "line.zip")
+    assert learners_for(agent) == ("axis", "stump")
+    cfg = ibt.config("smoke", cache_dir=tmp_path, progress=False)
+    ladder = run_ladder(cfg, agent, Settings(keep=2.0, rungs=(4,), search=False),
+                        agent_mean=0.0, random_mean=-10.0)
+    assert ladder.steps == ["distil axis at 4 leaves", "refine axis at 4 leaves",
+                            "distil stump at 4 leaves", "refine stump at 4 leaves"]
+    stumps = [c for c in ladder.candidates if c.learner == "stump"]
+    assert [c.stage for c in stumps] == ["distilled", "refined"]
+    assert all(c.tree.get_depth() <= 2 for c in stumps) and stumps[0].label == "distilled"
+    assert len(list((tmp_path / "stump-distill").glob("*/manifest.json"))) == 1
