@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ibt.bt.linear import LinearForm
+from ibt.bt.linear import Form
 from ibt.bt.model import (
     Action,
     BehaviorTree,
@@ -116,7 +116,7 @@ def _and(a: list[Box] | None, b: list[Box] | None) -> list[Box] | None:
     return out if len(out) <= MAX_BOXES else None
 
 
-Columns = dict[LinearForm, int]  # each linear form of a BT -> its derived coordinate
+Columns = dict[Form, int]  # each linear form of a BT -> its derived coordinate
 
 
 def _truth(node: Node, negate: bool = False, columns: Columns | None = None

@@ -18,13 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from ibt.bt.linear import LinearForm
+from ibt.bt.linear import Form, LinearForm
 
-Test = tuple[int | LinearForm, float, bool]  # (feature or form, threshold, True for "<=")
+Test = tuple[int | Form, float, bool]  # (feature or form, threshold, True for "<=")
 MAX_STEPS = 256  # float32 steps a crossing search walks from its first guess
 
 
-def _coefficients(what: int | LinearForm, n_features: int) -> np.ndarray:
+def _coefficients(what: int | Form, n_features: int) -> np.ndarray:
     a = np.zeros(n_features)
     if not isinstance(what, int | np.integer):
         for feature, weight in what.terms:
@@ -110,13 +110,13 @@ def _deepest(n_features: int, tests: Sequence[Test], lo: np.ndarray, hi: np.ndar
 
 
 def region_state(n_features: int, region: dict[int, tuple[float, float]],
-                 forms: Sequence[LinearForm]) -> np.ndarray:
+                 forms: Sequence[Form]) -> np.ndarray:
     """A state in a box over observed features and derived values (the coverage proof's
     regions: key ``n_features + k`` is ``forms[k]``; ``lo < value <= hi``), or, when the linear
     program finds none, the middle of its observed bounds (a best guess for the message)."""
     tests: list[Test] = []
     for key, (lo, hi) in region.items():
-        what: int | LinearForm = key if key < n_features else forms[key - n_features]
+        what: int | Form = key if key < n_features else forms[key - n_features]
         if math.isfinite(lo):
             tests.append((what, lo, False))
         if math.isfinite(hi):
@@ -131,12 +131,12 @@ def region_state(n_features: int, region: dict[int, tuple[float, float]],
     return guess
 
 
-def crossing_rows(what: int | LinearForm, threshold: float, row: np.ndarray) -> list[np.ndarray]:
+def crossing_rows(what: int | Form, threshold: float, row: np.ndarray) -> list[np.ndarray]:
     """States on both sides of one test, next to ``row``: the last float32 state passing
     ``<= threshold`` and the first past it, moving one feature (for a form, each of its two
     features in turn). Empty where no finite crossing is found near the first guess."""
     base = np.asarray(row, dtype=np.float32)
-    if not isinstance(what, LinearForm):
+    if isinstance(what, int | np.integer):
         at = np.float32(threshold)
         if float(at) > threshold:
             at = np.nextafter(at, np.float32(-np.inf))
@@ -147,10 +147,10 @@ def crossing_rows(what: int | LinearForm, threshold: float, row: np.ndarray) -> 
             out.append(edge)
         return out
     out = []
-    for moved, weight, other, other_weight in ((what.i, what.w1, what.j, what.w2),
-                                               (what.j, what.w2, what.i, what.w1)):
+    for moved, weight in what.terms:  # each feature of the form in turn, the others fixed
+        others = sum(w * float(base[f]) for f, w in what.terms if f != moved)
         with np.errstate(over="ignore", invalid="ignore"):
-            guess = np.float32((threshold - other_weight * float(base[other])) / weight)
+            guess = np.float32((threshold - others) / weight)
         if not np.isfinite(guess):
             continue
         pair = _crossing(what, threshold, base, moved, guess, weight > 0)
@@ -158,7 +158,7 @@ def crossing_rows(what: int | LinearForm, threshold: float, row: np.ndarray) -> 
     return out
 
 
-def _crossing(form: LinearForm, threshold: float, base: np.ndarray, moved: int,
+def _crossing(form: Form, threshold: float, base: np.ndarray, moved: int,
               guess: np.float32, rising: bool) -> list[np.ndarray]:
     """Walk ``x[moved]`` from ``guess`` over float32 values to where ``form <= threshold``
     flips (the form is monotone in one feature, rounding included)."""

@@ -272,11 +272,13 @@ def fit_model_tree(x: np.ndarray, y: np.ndarray, max_leaves: int, *, max_terms: 
             if node not in proposals:
                 rows = nodes[node]["rows"]
                 proposals[node] = _best_split(x[rows], y[rows], min_leaf)
-        ready = [(proposals[n][0], n) for n in frontier if proposals[n] is not None]
+        ready = [(found[0], n) for n in frontier if (found := proposals[n]) is not None]
         if not ready:
             break
         _, node = max(ready, key=lambda item: (item[0], -item[1]))
-        _, feature, threshold = proposals[node]  # type: ignore[misc]
+        chosen = proposals[node]
+        assert chosen is not None
+        _, feature, threshold = chosen
         rows = nodes[node]["rows"]
         goes_left = x[rows, feature] <= threshold
         nodes[node].update(feature=feature, threshold=threshold,
@@ -289,13 +291,13 @@ def fit_model_tree(x: np.ndarray, y: np.ndarray, max_leaves: int, *, max_terms: 
     arrays = ControllerArrays(np.full(n, -1, np.int64), np.full(n, -1, np.int64),
                               np.zeros((n, n_features)), np.zeros(n), np.zeros((n, n_dims)),
                               np.zeros((n, n_dims, n_features)))
-    for k, node in enumerate(nodes):
-        if "feature" in node:
-            arrays.left[k], arrays.right[k] = node["left"], node["right"]
-            arrays.split[k, node["feature"]] = 1.0
-            arrays.threshold[k] = node["threshold"]
+    for k, entry in enumerate(nodes):
+        if "feature" in entry:
+            arrays.left[k], arrays.right[k] = entry["left"], entry["right"]
+            arrays.split[k, entry["feature"]] = 1.0
+            arrays.threshold[k] = entry["threshold"]
             continue
-        rows = node["rows"]
+        rows = entry["rows"]
         for d in range(n_dims):
             arrays.bias[k, d], arrays.weights[k, d] = sparse_fit(x[rows], y[rows, d], max_terms)
     return arrays

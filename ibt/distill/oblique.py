@@ -186,11 +186,13 @@ def fit_oblique_tree(x: np.ndarray, y: np.ndarray, n_classes: int, max_leaves: i
                 if found is not None and (best is None or found[0] > best[0] + 1e-9):
                     best = (found[0], w, found[1])
             proposals[node] = best if best is not None and best[0] > 0 else None
-        ready = [(proposals[n][0], n) for n in frontier if proposals[n] is not None]
+        ready = [(p[0], n) for n in frontier if (p := proposals[n]) is not None]
         if not ready:
             break
         _, node = max(ready, key=lambda item: (item[0], -item[1]))
-        _, w, threshold = proposals[node]  # type: ignore[misc]
+        chosen = proposals[node]
+        assert chosen is not None
+        _, w, threshold = chosen
         rows = nodes[node]["rows"]
         goes_left = split_value(np.broadcast_to(w, (len(rows), len(w))), x[rows]) <= threshold
         nodes[node].update(split=w, threshold=threshold, left=len(nodes), right=len(nodes) + 1)
@@ -201,13 +203,13 @@ def fit_oblique_tree(x: np.ndarray, y: np.ndarray, n_classes: int, max_leaves: i
     n = len(nodes)
     tree = ObliqueArrays(np.full(n, -1, np.int64), np.full(n, -1, np.int64),
                          np.zeros((n, x.shape[1])), np.zeros(n), np.full(n, -1, np.int64))
-    for k, node in enumerate(nodes):
-        if "split" in node:
-            tree.left[k], tree.right[k] = node["left"], node["right"]
-            tree.split[k] = node["split"]
-            tree.threshold[k] = node["threshold"]
+    for k, entry in enumerate(nodes):
+        if "split" in entry:
+            tree.left[k], tree.right[k] = entry["left"], entry["right"]
+            tree.split[k] = entry["split"]
+            tree.threshold[k] = entry["threshold"]
         else:
-            counts = np.bincount(y[node["rows"]], minlength=n_classes)
+            counts = np.bincount(y[entry["rows"]], minlength=n_classes)
             tree.action[k] = int(np.argmax(counts))
     return tree
 

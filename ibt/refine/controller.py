@@ -51,7 +51,7 @@ class ControllerPopulation:
         self.split = np.asarray(split, dtype=np.float64).reshape(m, n, -1)
         self.bias = None if bias is None else np.asarray(bias, np.float64).reshape(m, n, -1)
         self.weights = (None if weights is None else
-                        np.asarray(weights, np.float64).reshape(m, *tree.weights.shape))
+                        np.asarray(weights, np.float64).reshape(m, n, *np.shape(weights)[-2:]))
         self.low, self.high = low, high
 
     @classmethod
@@ -59,10 +59,11 @@ class ControllerPopulation:
         """Trees of one shape as members."""
         threshold = np.stack([t.threshold for t in trees])
         split = np.stack([t.split for t in trees])
-        if isinstance(trees[0], ObliqueArrays):
+        controllers = [t for t in trees if isinstance(t, ControllerArrays)]
+        if not controllers:
             return cls(trees[0], threshold, split, None, None, None, None)
-        return cls(trees[0], threshold, split, np.stack([t.bias for t in trees]),
-                   np.stack([t.weights for t in trees]), np.asarray(task.action_low),
+        return cls(trees[0], threshold, split, np.stack([t.bias for t in controllers]),
+                   np.stack([t.weights for t in controllers]), np.asarray(task.action_low),
                    np.asarray(task.action_high))
 
     def __len__(self) -> int:
@@ -140,12 +141,13 @@ def _cma_stage(tree: Tree, task: Task, config: RefineConfig, episodes: RefineEpi
     oblique = np.argwhere((tree.split != 0) & ((tree.split != 0).sum(axis=1) > 1)[:, None])
     parts = [split_spread[splits],
              SPLIT_WEIGHT_SCALE * split_spread[oblique[:, 0]] / feature_spread[oblique[:, 1]]]
-    box = isinstance(tree, ControllerArrays)
-    if box:
-        low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    box = tree if isinstance(tree, ControllerArrays) else None
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    leaves = tree.leaves
+    terms = np.zeros((0, 3), dtype=np.int64)
+    if box is not None:
         span = high - low
-        leaves = tree.leaves
-        terms = np.argwhere(tree.weights != 0)  # (node, dim, feature) of every command term
+        terms = np.argwhere(box.weights != 0)  # (node, dim, feature) of every command term
         parts += [np.tile(BIAS_SCALE * span, len(leaves)),
                   BIAS_SCALE * span[terms[:, 1]] / feature_spread[terms[:, 2]]]
     scale = np.concatenate(parts)
@@ -160,18 +162,18 @@ def _cma_stage(tree: Tree, task: Task, config: RefineConfig, episodes: RefineEpi
         w = np.repeat(tree.split[None], m, axis=0)
         w[:, oblique[:, 0], oblique[:, 1]] += z[:, k1:k2]
         out = {"threshold": t, "split": w}
-        if box:
-            b = np.repeat(tree.bias[None], m, axis=0)
-            k3 = k2 + len(leaves) * tree.n_dims
-            b[:, leaves] += z[:, k2:k3].reshape(m, len(leaves), tree.n_dims)
-            c = np.repeat(tree.weights[None], m, axis=0)
+        if box is not None:
+            b = np.repeat(box.bias[None], m, axis=0)
+            k3 = k2 + len(leaves) * box.n_dims
+            b[:, leaves] += z[:, k2:k3].reshape(m, len(leaves), box.n_dims)
+            c = np.repeat(box.weights[None], m, axis=0)
             c[:, terms[:, 0], terms[:, 1], terms[:, 2]] += z[:, k3:]
             out.update(bias=b, weights=c)
         return out
 
     def population(z: np.ndarray) -> ControllerPopulation:
         p = members(z)
-        if not box:
+        if box is None:
             return ControllerPopulation(tree, p["threshold"], p["split"], None, None, None, None)
         return ControllerPopulation(tree, p["threshold"], p["split"], p["bias"], p["weights"],
                                     low, high)
