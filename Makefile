@@ -58,7 +58,8 @@ smoke: setup ## run every notebook under the smoke profile into build/smoke (sec
 		IBT_PROFILE=smoke $(BIN)/papermill --no-progress-bar --cwd notebooks $$nb build/smoke/$$(basename $$nb); \
 	done
 
-book: setup ## the HTML book (notebooks with their committed outputs, report, formats, CLI, API), offline
+book: setup ## the HTML book (notebooks with their committed outputs, paper/, docs/, CLI, API), offline
+	@$(BIN)/python -m ibt.book notebooks $(NOTEBOOKS) || exit 2  # a broken notebook: one line
 	@start=$$(date +%s); $(BIN)/sphinx-build -q -W --keep-going -b html -c docs/book \
 		-d build/book/doctrees . build/book/html && \
 	echo "make book: $$(( $$(date +%s) - start )) s; open build/book/html/index.html" \
