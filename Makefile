@@ -62,7 +62,8 @@ verify: setup ## check every headline and verdict number against paper/claims.cs
 	@start=$$(date +%s); $(BIN)/python -m ibt.check_claims $(if $(SMOKE),--smoke) && \
 	echo "make verify: $$(( $$(date +%s) - start )) s"
 
-book: setup ## the HTML book (notebooks with their committed outputs, report, formats, CLI, API), offline
+book: setup ## the HTML book (notebooks with their committed outputs, paper/, docs/, CLI, API), offline
+	@$(BIN)/python -m ibt.book notebooks $(NOTEBOOKS) || exit 2  # a broken notebook: one line
 	@start=$$(date +%s); $(BIN)/sphinx-build -q -W --keep-going -b html -c docs/book \
 		-d build/book/doctrees . build/book/html && \
 	echo "make book: $$(( $$(date +%s) - start )) s; open build/book/html/index.html" \

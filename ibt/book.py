@@ -1,11 +1,14 @@
 """The HTML book (``make book``): its API pages, and a check of every page in headless Chromium.
 
 The book's sources are the notebooks, ``paper/`` and ``docs/`` (Sphinx + myst-nb, configured in
-``docs/book/conf.py``). This module writes the API reference's pages (one per sub-package, so a
-new module appears without editing the book), loads every built page in headless Chromium and
-reports what a reader would meet: a page that does not load, a link to a page or anchor that
-is not there, an image that does not show, a JavaScript error or a file the page fails to load.
+``docs/book/conf.py``), and the README's headline table on its front page. This module checks
+the notebooks before Sphinx reads them, writes the front page's table and the API reference's
+pages (one per sub-package, so a new module appears without editing the book), loads every
+built page in headless Chromium and reports what a reader would meet: a page that does not
+load, a link to a page or anchor that is not there, an image that does not show, a JavaScript
+error or a file the page fails to load.
 
+    python -m ibt.book notebooks NOTEBOOK...        # exit 2 and one line for a broken one
     python -m ibt.book check build/book/html        # exit 1 and one line per problem
     python -m ibt.book screenshot build/book/html index.html front.png
 """
@@ -165,6 +168,64 @@ def rebase_output_links(notebook_text: str, notebook_dir: Path, root: Path) -> s
             if new != text:
                 data["text/markdown"], changed = new, True
     return json.dumps(notebook, indent=1, ensure_ascii=False) if changed else notebook_text
+
+
+# ---------------------------------------------------------------- the notebooks it reads
+
+
+def notebook_problem(path: Path) -> str | None:
+    """One line naming what makes ``path`` unreadable as a notebook (truncated JSON, not a
+    notebook, invalid against nbformat's schema) and the fix; None for a valid notebook.
+
+    Checked before Sphinx reads the notebooks, whose own error would be a traceback."""
+    import nbformat
+
+    fix = f"restore it with `git checkout -- {path}` or re-run it (make figures)"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        return f"{path} is not a notebook (not UTF-8 text): {fix}"
+    except json.JSONDecodeError as err:
+        return f"{path} is not a notebook (broken or truncated JSON at line {err.lineno}): {fix}"
+    if not isinstance(data, dict) or not isinstance(data.get("nbformat"), int):
+        return f"{path} is not a notebook (no nbformat version): {fix}"
+    try:
+        nbformat.validate(data)
+    except nbformat.ValidationError as err:
+        reason = " ".join(str(err.message).split())[:200]
+        return f"{path} is not a valid notebook ({reason}): {fix}"
+    return None
+
+
+# ---------------------------------------------------------------- the front page's headline
+
+#: where the front page takes the README's headline table
+HEADLINE_PLACEHOLDER = "<!-- the README's headline table -->"
+
+
+def front_page_headline(readme_text: str, page_dir: str) -> str:
+    """The README's generated headline table, for a page in ``page_dir`` (relative to the root).
+
+    The README links from the repository's root; each link is rebased onto ``page_dir``. A link
+    to a folder (the BT's folder, which GitHub lists) keeps only its text: a book holds files.
+    """
+    from ibt.report.markdown import HEADLINE_BEGIN, HEADLINE_END
+
+    if HEADLINE_BEGIN not in readme_text or HEADLINE_END not in readme_text:
+        raise ValueError(f"README.md lacks the headline markers {HEADLINE_BEGIN!r} ... "
+                         f"{HEADLINE_END!r}: run notebooks/11_headline.ipynb")
+    block = readme_text.split(HEADLINE_BEGIN, 1)[1].split(HEADLINE_END, 1)[0].strip()
+    up = "/".join(".." for part in Path(page_dir).parts if part not in ("", "."))
+
+    def rebase(match: re.Match[str]) -> str:
+        text, target = match.group(1), match.group(2)
+        if urlsplit(target).scheme or target.startswith(("/", "#")):
+            return match.group(0)
+        if target.endswith("/"):
+            return text
+        return f"{text}({up}/{target})" if up else match.group(0)
+
+    return re.sub(r"(\[[^\]]*\])\(([^)\s]+)\)", rebase, block)
 
 
 # ---------------------------------------------------------------- the browser check
@@ -361,6 +422,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m ibt.book", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
+    notebooks = sub.add_parser("notebooks", help="check that the notebooks the book reads are "
+                               "valid (exit 2 and one line naming the first that is not)")
+    notebooks.add_argument("paths", nargs="+", type=Path)
     check = sub.add_parser("check", help="load every page in headless Chromium")
     check.add_argument("html_dir")
     shot = sub.add_parser("screenshot", help="a PNG of one page")
@@ -371,6 +435,14 @@ def main(argv: list[str] | None = None) -> int:
     shot.add_argument("--width", type=int, default=1280)
     shot.add_argument("--height", type=int, default=900)
     args = parser.parse_args(argv)
+    if args.command == "notebooks":
+        for path in args.paths:
+            broken = (f"no notebook at {path}: give paths such as notebooks/00_quickstart.ipynb"
+                      if not path.is_file() else notebook_problem(path))
+            if broken:
+                print(broken, file=sys.stderr)
+                return 2
+        return 0
     html_dir = Path(args.html_dir)
     if not (html_dir / "index.html").is_file():
         print(f"{html_dir} holds no built book (no index.html): run `make book` first",

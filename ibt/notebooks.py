@@ -1,17 +1,22 @@
 """Notebook housekeeping: run a notebook in place, scrub volatile metadata after papermill runs,
-time ``make figures``.
+record how long ``make figures`` takes.
 
 ``python -m ibt.notebooks run NB...`` executes each notebook in place as ``papermill --cwd
 notebooks NB NB`` does (parameters as committed, ``IBT_PROFILE`` from the environment), with the
 kernel on local IPC sockets rather than TCP ports: papermill's command line has no switch for
 that, and a TCP kernel warns on every run that it talks unencrypted. Then it scrubs the notebook.
 
+``python -m ibt.notebooks record-time SECONDS`` keeps ``data/results/make_figures.json``
+(see :func:`record_time`).
+
 ``python -m ibt.notebooks scrub NB...`` removes timings, kernel ids and papermill's run records
-so that a re-executed notebook differs from the committed one only where results changed. It
-also drops widget state: the notebook's ``widgets`` metadata (the saved models) and, in
-outputs, the ``application/vnd.jupyter.widget-view+json`` views, which point at those models and
-draw as "model not found" without them; an output left with only the widget's ``text/plain``
-repr (``VBox(children=...)``) goes too. The committed notebooks carry the static rendering of
+so that a re-executed notebook differs from the committed one only where results changed:
+progress bars go, and the stdout and stderr pieces of a cell are joined in a fixed order (the
+kernel's interleaving of the two varies between runs). It also drops widget state: the
+notebook's ``widgets`` metadata (the saved models) and, in outputs, the
+``application/vnd.jupyter.widget-view+json`` views, which point at those models and draw as
+"model not found" without them; an output left with only the widget's ``text/plain`` repr
+(``VBox(children=...)``) goes too. The committed notebooks carry the static rendering of
 their widgets (see :mod:`ibt.views.widgets`), which needs none of this.
 """
 
@@ -22,6 +27,8 @@ import sys
 from pathlib import Path
 
 import nbformat
+
+from ibt.paths import DATA_DIR
 
 VOLATILE_CELL_KEYS = ("papermill", "execution", "collapsed", "scrolled")
 VOLATILE_NOTEBOOK_KEYS = ("papermill", "widgets")
@@ -42,10 +49,10 @@ def scrub(path: str | Path) -> None:
     for cell in nb.cells:
         for key in VOLATILE_CELL_KEYS:
             cell.metadata.pop(key, None)
-        if cell.cell_type == "code":  # progress bars (stderr with carriage returns) are noise
-            cell["outputs"] = [o for o in map(_without_widget_view, cell.get("outputs", []))
-                               if o is not None and not (o.get("name") == "stderr"
-                                                         and "\r" in o.get("text", ""))]
+        if cell.cell_type == "code":
+            cell["outputs"] = _streams_in_order(
+                [o for o in map(_without_widget_view, cell.get("outputs", []))
+                 if o is not None and not _progress_noise(o)])
             for output in cell.get("outputs", []):
                 output.get("metadata", {}).pop("execution", None)
                 plain = output.get("data", {}).get("text/plain")
@@ -71,6 +78,46 @@ def run(path: str | Path, cwd: str | Path | None = None) -> None:
     scrub(path)
 
 
+def _progress_noise(output: dict) -> bool:
+    """Whether an output is a progress bar's: stderr with carriage returns (the bar), or
+    stderr of whitespace only (the newline a bar writes when it closes)."""
+    if output.get("output_type") != "stream" or output.get("name") != "stderr":
+        return False
+    text = output.get("text", "")
+    text = "".join(text) if isinstance(text, list) else text
+    return "\r" in text or not text.strip()
+
+
+def _streams_in_order(outputs: list) -> list:
+    """Each run of consecutive stream outputs as at most one ``stdout`` then one ``stderr``.
+
+    The kernel sends stdout and stderr on separate channels, so how their pieces interleave
+    (and into how many outputs they are cut) varies between runs; joined per stream in a fixed
+    order, the same text gives the same notebook."""
+    import nbformat
+
+    result: list = []
+    run: dict[str, list[str]] = {}
+
+    def flush() -> None:
+        for name in ("stdout", "stderr"):
+            if name in run:
+                result.append(nbformat.v4.new_output("stream", name=name,
+                                                     text="".join(run[name])))
+        run.clear()
+
+    for output in outputs:
+        if output.get("output_type") == "stream":
+            text = output.get("text", "")
+            run.setdefault(output.get("name", "stdout"), []).append(
+                "".join(text) if isinstance(text, list) else text)
+        else:
+            flush()
+            result.append(output)
+    flush()
+    return result
+
+
 def _without_widget_view(output: dict) -> dict | None:
     """``output`` without its widget view; ``None`` when nothing but the widget's repr is left."""
     data = output.get("data")
@@ -80,23 +127,54 @@ def _without_widget_view(output: dict) -> dict | None:
     return output if set(data) - {"text/plain"} else None
 
 
-def record_time(seconds: float, data_dir: Path | None = None) -> Path:
-    """Write ``data/results/make_figures.json``: how long the last ``make figures`` took here.
+#: a new wall time replaces the record only outside this factor of it (or on another machine)
+RECORD_TOLERANCE = 1.5
 
-    The report and the README read it on the next run (they run inside ``make figures``).
-    """
-    import datetime
-    import json
+
+def _record_path(data_dir: Path | None) -> Path:
+    return (data_dir or DATA_DIR) / "results" / "make_figures.json"
+
+
+def _machine() -> str:
     import os
     import platform
 
-    from ibt.files import atomic_write_text
-    from ibt.paths import DATA_DIR
+    return f"{platform.machine()}, {os.cpu_count()} cores"
 
-    target = (data_dir or DATA_DIR) / "results" / "make_figures.json"
-    facts = {"seconds": float(seconds), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-             "date": datetime.date.today().isoformat()}
-    atomic_write_text(target, json.dumps(facts, indent=1) + "\n")
+
+def record_stands(seconds: float, data_dir: Path | None = None) -> bool:
+    """Whether ``data/results/make_figures.json`` already describes a run of ``seconds`` here:
+    the same machine (architecture, cores) and a recorded time within :data:`RECORD_TOLERANCE`
+    of it either way."""
+    import json
+
+    try:
+        old = json.loads(_record_path(data_dir).read_text())
+        recorded = float(old["seconds"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False  # no record, or one that cannot be read
+    return (old.get("machine") == _machine() and recorded > 0
+            and 1 / RECORD_TOLERANCE <= seconds / recorded <= RECORD_TOLERANCE)
+
+
+def record_time(seconds: float, data_dir: Path | None = None) -> Path:
+    """Record in ``data/results/make_figures.json`` how long ``make figures`` took here.
+
+    The record (time, machine, date) describes this kind of machine, not the last run: it is
+    rewritten only when it does not stand (:func:`record_stands`), so rerunning ``make figures``
+    leaves the committed file, and the tree, as they were. The report and the README name the
+    file; ``make reproduce`` prints its time.
+    """
+    import datetime
+    import json
+
+    from ibt.files import atomic_write_text
+
+    target = _record_path(data_dir)
+    if not record_stands(seconds, data_dir):
+        facts = {"seconds": float(seconds), "machine": _machine(),
+                 "date": datetime.date.today().isoformat()}
+        atomic_write_text(target, json.dumps(facts, indent=1) + "\n")
     return target
 
 
@@ -105,7 +183,16 @@ USAGE = "usage: python -m ibt.notebooks run NOTEBOOK... | scrub NOTEBOOK... | re
 
 def main(argv: list[str]) -> int:
     if len(argv) == 2 and argv[0] == "record-time":
-        print(f"make figures took {float(argv[1]):.0f} s: {record_time(float(argv[1]))}")
+        try:
+            seconds = float(argv[1])
+        except ValueError:
+            print(f"record-time takes the wall time in seconds, got {argv[1]!r}", file=sys.stderr)
+            return 2
+        stands = record_stands(seconds)
+        path = record_time(seconds)
+        print(f"make figures took {seconds:.0f} s: " + (
+            f"within {RECORD_TOLERANCE}x of the record in {path}, which stands" if stands
+            else f"recorded in {path}"))
         return 0
     if len(argv) < 2 or argv[0] not in ("run", "scrub"):
         print(USAGE, file=sys.stderr)

@@ -1,6 +1,8 @@
 """The HTML book (``make book``): it builds offline with no warning, holds every notebook with its
-committed outputs, the report, the formats, the CLI and the API, and every page opens in headless
-Chromium with no broken link, missing image or JavaScript error.
+committed outputs, ``paper/`` (results, method, report), every page of ``docs/``, the README's
+headline table on its front page, the CLI and the API, and every page opens in headless
+Chromium with no broken link, missing image or JavaScript error. A broken notebook stops
+``make book`` before Sphinx with exit 2 and one line naming it.
 
 The browser half needs Debian's ``chromium`` and ``chromium-driver`` (``.ci/run`` installs them);
 without them it skips, except under CI (``CI`` set), where it fails.
@@ -16,6 +18,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from ibt import book
@@ -48,13 +51,32 @@ def html(tmp_path_factory) -> Path:
 
 
 def test_the_book_holds_every_part(html):
-    # Expect: a page per notebook, the report, the formats, the CLI and the API reference
+    # Expect: a page per notebook, every page of paper/ and docs/ (what the README links), the
+    # CLI and the API reference
     pages = {p.relative_to(html).as_posix() for p in book.html_pages(html)}
     expected = {f"notebooks/{nb.stem}.html" for nb in NOTEBOOKS} | {
-        "index.html", "docs/book/index.html", "paper/README.html", "paper/reproduction.html",
-        "docs/format.html", "docs/book/cli.html", "docs/book/api/index.html"}
+        "index.html", "docs/book/index.html", "docs/book/cli.html", "docs/book/api/index.html"}
+    expected |= {f"{md.parent.name}/{md.stem}.html" for md in [
+        *ROOT.glob("paper/*.md"), *ROOT.glob("docs/*.md")]}
+    assert {"paper/results.html", "paper/method.html", "docs/deploy.html",
+            "docs/hostile.html"} <= expected
     assert expected <= pages, sorted(expected - pages)
     assert {f"docs/book/api/{page}.html" for page in book.api_modules()} <= pages
+
+
+def test_the_front_page_shows_the_headline_table(html):
+    # Expect: one table row per headline BT (a BT in two roles is one row), each with its
+    # drawing and its GIF in the book
+    headline = pd.read_csv(ROOT / "data" / "results" / "headline.csv").drop_duplicates(
+        "json_file")
+    front = (html / "docs" / "book" / "index.html").read_text()
+    table = front.split('id="the-headline"', 1)[1].split("</table>", 1)[0]
+    assert table.count("<tr") == len(headline) + 1  # and the header row
+    for suffix in ("bt.png", "episode.gif"):
+        links = re.findall(rf'href="([^"]*/{re.escape(suffix)})"', table)
+        assert len(links) == len(headline), suffix
+        front_dir = html / "docs" / "book"
+        assert all((front_dir / link).is_file() for link in links), links
 
 
 def test_notebooks_show_their_committed_outputs(html):
@@ -174,3 +196,52 @@ def test_a_package_function_named_like_its_submodule_is_not_indexed_twice(tmp_pa
                     "    pass\n\ndef other():\n    pass\n")
     assert book.shadowed_names(init, {"main", "checks", "Tool", "commands"}) == {
         "main": "autofunction", "Tool": "autoclass"}
+
+
+def test_the_front_pages_headline_links_from_its_folder():
+    # Expect: links rebased from the root onto the page's folder, a folder link kept as text,
+    # URLs and anchors untouched; a README without the markers is refused
+    from ibt.report.markdown import HEADLINE_BEGIN, HEADLINE_END
+
+    readme = (f"intro\n{HEADLINE_BEGIN}\n\n| a | [`bt`](figures/h/x/) ([drawing](figures/h/x/bt.png"
+              f")) [u](https://example.org/a.png) [s](#top) |\n\n{HEADLINE_END}\nrest")
+    assert book.front_page_headline(readme, "docs/book") == (
+        "| a | [`bt`] ([drawing](../../figures/h/x/bt.png)) [u](https://example.org/a.png) "
+        "[s](#top) |")
+    assert "(figures/h/x/bt.png)" in book.front_page_headline(readme, ".")
+    with pytest.raises(ValueError, match="headline markers"):
+        book.front_page_headline("no table here", "docs/book")
+
+
+BROKEN_NOTEBOOKS = {
+    "truncated": lambda text: text[: len(text) // 2],
+    "empty": lambda text: "",
+    "not a notebook": lambda text: "[1, 2, 3]",
+    "invalid": lambda text: text.replace('"cell_type": "code"', '"cell_type": "spreadsheet"', 1),
+}
+
+
+@pytest.mark.parametrize("how", BROKEN_NOTEBOOKS)
+def test_a_broken_notebook_is_named_in_one_line(tmp_path, capsys, how):
+    # Expect: exit 2 and one line naming the file and the fix; the committed notebooks pass
+    good = (ROOT / "notebooks" / "00_quickstart.ipynb").read_text()
+    broken = tmp_path / "05_broken.ipynb"
+    broken.write_text(BROKEN_NOTEBOOKS[how](good))
+    assert book.main(["notebooks", *map(str, NOTEBOOKS), str(broken)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(broken) in err and "git checkout" in err, err
+    assert book.main(["notebooks", *map(str, NOTEBOOKS)]) == 0
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+def test_make_book_stops_on_a_truncated_notebook(tmp_path):
+    # Expect: `make book` exits 2 before Sphinx starts, our one line naming the notebook (make
+    # adds its own "***" line)
+    truncated = tmp_path / "03_truncated.ipynb"
+    truncated.write_text((ROOT / "notebooks" / "03_distillation.ipynb").read_text()[:500])
+    result = subprocess.run(["make", "-o", ".venv/.installed", "book", f"NOTEBOOKS={truncated}"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    ours = [line for line in result.stderr.splitlines() if not line.startswith("make")]
+    assert len(ours) == 1 and str(truncated) in ours[0], result.stderr
+    assert "sphinx" not in result.stdout.lower()

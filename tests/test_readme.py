@@ -120,6 +120,26 @@ class MyEnv(gym.Env):
         self.state = np.array([distance, speed])
         crashed = distance == 0.0
         return self.state.astype(np.float32), -10.0 if crashed else speed / 5, crashed, False, {}
+
+
+class MyArm(gym.Env):
+    """angle and angular velocity; a torque in [-2, 2] N m (the README's continuous task)."""
+
+    def __init__(self):
+        self.observation_space = gym.spaces.Box(np.array([-3.2, -8.0], np.float32),
+                                                np.array([3.2, 8.0], np.float32))
+        self.action_space = gym.spaces.Box(-2.0, 2.0, shape=(1,), dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.state = self.np_random.uniform([-1.0, -1.0], [1.0, 1.0])
+        return self.state.astype(np.float32), {}
+
+    def step(self, action):
+        angle, velocity = self.state
+        velocity = float(np.clip(velocity + 0.1 * float(action[0]), -8.0, 8.0))
+        self.state = np.array([np.clip(angle + 0.05 * velocity, -3.2, 3.2), velocity])
+        return self.state.astype(np.float32), -abs(self.state[0]), False, False, {}
 '''
 
 
@@ -144,8 +164,9 @@ def my_envs(tmp_path, monkeypatch):
                    experts=(("ppo", hp(1024, 1, n_steps=256, batch_size=64)),))
     train_expert(task, "ppo", tmp_path / "my_agent.zip", progress=False)
     yield tmp_path
-    TASKS.pop("MyEnv-v0", None)
-    gym.registry.pop("MyEnv-v0", None)
+    for name in ("MyEnv-v0", "MyArm-v0"):
+        TASKS.pop(name, None)
+        gym.registry.pop(name, None)
     sys.modules.pop("my_envs", None)
 
 
@@ -155,6 +176,19 @@ def test_the_distil_your_own_agent_blocks_run(my_envs):
         p.name for p in (my_envs / "my_bt").iterdir()}
     _run_block(_block("python -m ibt distill MyEnv-v0"))
     assert (my_envs / "bt.png").exists()
+
+
+def test_the_readmes_continuous_task_is_registered_with_its_fields(my_envs):
+    # Expect: the README's continuous example is a continuous task whose fields the docs name,
+    # checked against its environment's action Box when registered
+    from ibt.tasks.catalogue import resolve_task
+
+    arm = resolve_task("MyArm-v0")
+    assert arm.continuous and arm.action_names == ("torque",)
+    assert (arm.action_low, arm.action_high, arm.action_units) == ((-2.0,), (2.0,), ("N m",))
+    fields = (ROOT / "docs" / "own-agent.md").read_text()
+    for name in ("action_low", "action_high", "action_units", "feature_names", "low", "high"):
+        assert f"`{name}`" in fields, name
 
 
 def test_the_btcpp_example_is_a_committed_trees_condition():
@@ -201,6 +235,38 @@ def test_the_headline_table_is_the_committed_csv():
     assert shown == front_page_block(headline)
     for column in ("json_file", "xml_file", "png_file", "svg_file", "gif_file"):
         assert all((ROOT / path).is_file() for path in headline[column]), column
+
+
+#: what Groot2's free edition monitors: a BT of at most this many nodes
+GROOT2_FREE_NODES = 20
+
+
+def test_the_groot2_sentence_is_the_headline_csv():
+    # Expect: the README names exactly the headline BTs that Groot2's free monitor shows, with
+    # node counts as the committed bt.xml files hold them, and the others' range
+    import xml.etree.ElementTree as ET
+
+    headline = pd.read_csv(ROOT / "data" / "results" / "headline.csv").drop_duplicates(
+        "json_file")
+    for row in headline.itertuples():
+        trees = ET.parse(ROOT / row.xml_file).getroot().findall("BehaviorTree")
+        assert sum(len(list(tree.iter())) - 1 for tree in trees) == row.bt_nodes, row.xml_file
+    fits = headline[headline.bt_nodes <= GROOT2_FREE_NODES]
+    others = headline[headline.bt_nodes > GROOT2_FREE_NODES]
+    named = " and ".join(f"{r.task} ({r.expert.upper()}, {r.bt_nodes} nodes)"
+                         for r in fits.itertuples())
+    said = (f"Groot2's free edition monitors a running BT of up to {GROOT2_FREE_NODES} nodes: of "
+            f"the headline BTs, {named} fit; the others have {others.bt_nodes.min()} to "
+            f"{others.bt_nodes.max()} nodes.")
+    assert said in " ".join(README.read_text().split())
+
+
+def test_the_package_list_names_every_sub_package():
+    # Expect: the "What is where" row of ibt/ names each sub-package (a folder with __init__.py)
+    row = next(line for line in README.read_text().splitlines() if line.startswith("| `ibt/`"))
+    named = set(re.findall(r"`([a-z_]+)`", row))
+    packages = {p.parent.name for p in (ROOT / "ibt").glob("*/__init__.py")}
+    assert packages <= named, sorted(packages - named)
 
 
 def test_no_public_text_cites_the_tracker():

@@ -1,5 +1,6 @@
 """Sphinx configuration of the HTML book (``make book``): the notebooks with their committed
-outputs, the reproduction report, the file format, the CLI and the API reference.
+outputs, the README's headline table on the front page, ``paper/`` (results, method,
+reproduction report), every page of ``docs/``, the CLI and the API reference.
 
 The source folder is the repository root (``sphinx-build -c docs/book . OUT``), so notebooks and
 reports link to ``../figures/...`` exactly as they do on GitHub; ``include_patterns`` picks the
@@ -14,7 +15,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from ibt.book import rebase_output_links, write_api_pages  # noqa: E402
+from ibt.book import (  # noqa: E402
+    HEADLINE_PLACEHOLDER,
+    front_page_headline,
+    rebase_output_links,
+    write_api_pages,
+)
 
 project = "Imitation-BT"
 author = "the Imitation-BT authors"
@@ -31,11 +37,9 @@ extensions = [
 root_doc = "docs/book/index"
 include_patterns = [
     "docs/book/**",
-    "docs/format.md",
-    "docs/ARCHITECTURE.md",
+    "docs/*.md",
     "notebooks/[0-9]*.ipynb",
-    "paper/README.md",
-    "paper/reproduction.md",
+    "paper/*.md",
 ]
 exclude_patterns = [
     ".git", ".venv", "build", "data", "tests", "ibt", "**/.ipynb_checkpoints", "docs/book/conf.py",
@@ -81,10 +85,15 @@ def _api_pages(app: object) -> None:
 
 def _notebook_links(app, docname: str, source: list[str]) -> None:
     """Links in a notebook's Markdown outputs that were written from the repository's root,
-    rebased onto the notebook's folder (see :func:`ibt.book.rebase_output_links`)."""
+    rebased onto the notebook's folder (see :func:`ibt.book.rebase_output_links`); the front
+    page's placeholder replaced by the README's headline table."""
     path = Path(app.env.doc2path(docname))
     if path.suffix == ".ipynb":
         source[0] = rebase_output_links(source[0], path.parent, ROOT)
+    elif HEADLINE_PLACEHOLDER in source[0]:
+        readme = (ROOT / "README.md").read_text(encoding="utf-8")
+        table = front_page_headline(readme, path.parent.relative_to(ROOT).as_posix())
+        source[0] = source[0].replace(HEADLINE_PLACEHOLDER, table)
 
 
 def _foreign_member(app: object, what: str, name: str, obj: object, skip: bool,
