@@ -34,7 +34,7 @@ def distill_key(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
     config = entry.settings(cfg, agent, method, overrides)
     params = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
               "config": config.as_params(), **entry.key_params(),
-              "expert_sha256": agent.digest}
+              "expert_sha256": agent.digest}  # as distillation_of keys it
     return entry.kind, params, config
 
 
@@ -44,9 +44,18 @@ def distillation(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
     :class:`ibt.distill.loop.Distillation` (``axis``, ``relational``), or for ``box`` a plain
     document (``iterations``, ``best_index``, ``tree`` as
     :func:`ibt.distill.continuous.regressor_doc`, ``wall_seconds``)."""
+    _, _, config = distill_key(cfg, agent, seed, learner, method, **overrides)
+    return distillation_of(cfg, agent, seed, learner, config)
+
+
+def distillation_of(cfg: Config, agent: Agent, seed: int, learner: str, config: Any) -> Any:
+    """One distillation run with explicit settings (a study's own budget), keyed as
+    :func:`distill_key` keys it."""
     entry = get_learner(learner)
-    kind, params, config = distill_key(cfg, agent, seed, learner, method, **overrides)
-    return load_or_compute(kind, params, lambda: entry.fit(cfg, agent, config, seed),
+    params = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
+              "config": config.as_params(), **entry.key_params(),
+              "expert_sha256": agent.digest}
+    return load_or_compute(entry.kind, params, lambda: entry.fit(cfg, agent, config, seed),
                            cache_dir=cfg.cache_dir, codec=entry.codec, refresh=cfg.refresh)
 
 

@@ -20,10 +20,10 @@ def doc_digest(doc: Any) -> str:
 
 
 def tree_key(tree: Any) -> str:
-    """The identity of any tree a stage returns (classifier, relational or command tree)."""
-    from ibt.refine.commands import CommandArrays
-
-    return doc_digest(tree.to_doc()) if isinstance(tree, CommandArrays) else tree_digest(tree)
+    """The identity of any tree a stage returns: a classifier's (relational ones included) by
+    its decision function, a tree held as plain data (command, controller and oblique trees:
+    a ``to_doc`` method) by its document."""
+    return doc_digest(tree.to_doc()) if hasattr(tree, "to_doc") else tree_digest(tree)
 
 
 def bt_digest(bt: Any) -> str:
@@ -33,6 +33,4 @@ def bt_digest(bt: Any) -> str:
 
 def leaves_of(tree: Any) -> int:
     """The leaves of any tree a stage returns."""
-    from ibt.refine.commands import CommandArrays
-
-    return int(tree.n_leaves if isinstance(tree, CommandArrays) else tree.get_n_leaves())
+    return int(tree.n_leaves if hasattr(tree, "to_doc") else tree.get_n_leaves())

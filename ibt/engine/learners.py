@@ -20,7 +20,7 @@ a worker imports those modules before it runs a stage.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from ibt.engine import budgets
@@ -204,6 +204,48 @@ def _box_refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float,
     return command_refinement(cfg, agent, tree, seed, config).best
 
 
+def _controller_settings(cfg: Config, agent: Agent, method: str | None,
+                         overrides: dict[str, Any]) -> Any:
+    """A controller (or oblique) tree's loop settings at a leaf limit (its one override)."""
+    overrides = dict(overrides)
+    leaves = overrides.pop("max_leaf_nodes", None)
+    if overrides:
+        raise TypeError(f"a controller distillation takes max_leaf_nodes only, not "
+                        f"{sorted(overrides)}")
+    config = budgets.controller_config(cfg, agent.task, leaves)
+    return replace(config, method=method) if method else config
+
+
+def _controller_fit(cfg: Config, agent: Agent, config: Any, seed: int) -> dict[str, Any]:
+    """The loop with a model tree (Box) or an oblique tree (discrete): ``tree`` (its
+    document), ``iterations``, ``best_index``, ``wall_seconds``."""
+    from ibt.distill.controller import distill_controller
+    from ibt.distill.oblique import distill_oblique
+
+    learn = distill_controller if agent.continuous else distill_oblique
+    run = learn(agent.task, agent.load(), config, seed, progress=cfg.progress)
+    return {"tree": run.best_tree.to_doc(), "iterations": run.iterations,
+            "best_index": run.best_index, "wall_seconds": run.wall_seconds}
+
+
+def _controller_tree(cfg: Config, agent: Agent, run: dict[str, Any], seed: int) -> Any:
+    from ibt.refine.controller import tree_from_doc
+
+    return tree_from_doc(run["tree"])
+
+
+def _controller_refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float,
+                       episodes: int | None) -> Any:
+    """Thresholds, test weights and commands refined by return, constants rounded to the
+    fewest digits that keep the return (:func:`ibt.engine.refine.controller_refinement`)."""
+    from ibt.engine.refine import controller_refinement
+    from ibt.refine.controller import tree_from_doc
+
+    config = budgets.scaled_refine_config(cfg, agent.task, scale, episodes, commands=True)
+    record = controller_refinement(cfg, agent.task, tree, seed, config, tolerance=0.0)
+    return tree_from_doc(record["candidates"][record["best_index"]])
+
+
 for _entry in (
     Learner("axis", DISCRETE, "distill", "distillation", _loop_settings(None), _loop_fit,
             _best_tree, _refine_classifier("imitation-bt"), searched=True,
@@ -217,5 +259,12 @@ for _entry in (
     Learner("box", BOX, "box-distill", "json", _box_settings, _box_fit, _box_tree,
             _box_refine,
             description="a regression tree whose leaves are merged into named commands"),
+    Learner("oblique", DISCRETE, "controller-distil", "json", _controller_settings,
+            _controller_fit, _controller_tree, _controller_refine, min_features=2,
+            combines_features=True,
+            description="tests of up to four features, w1 * x1 + ... + wk * xk > t"),
+    Learner("controller", BOX, "controller-distil", "json", _controller_settings,
+            _controller_fit, _controller_tree, _controller_refine, combines_features=True,
+            description="tests of up to four features and commands linear in up to four"),
 ):
     register_learner(_entry)

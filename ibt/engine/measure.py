@@ -90,15 +90,20 @@ def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: li
 def policy(agent: Agent, tree: Any, bts: dict[str, Any]
            ) -> tuple[dict[str, Any], Callable[[], Any]]:
     """How a tree is measured: its identity in the cache, and its policy's maker."""
+    from ibt.engine.synthesis import builds_own_bt
     from ibt.evaluate.policies import TreePolicy
     from ibt.refine.commands import CommandArrays
 
     task = agent.task
-    if isinstance(tree, CommandArrays):
-        from ibt.synth.commands import CommandBTPolicy
-
+    if isinstance(tree, CommandArrays) or builds_own_bt(tree):  # measured as their BT
         bt = bts[smallest_bt(bts)]
-        return {"bt": bt_digest(bt)}, lambda: CommandBTPolicy(task, bt).act
+        if task.continuous:
+            from ibt.synth.commands import CommandBTPolicy
+
+            return {"bt": bt_digest(bt)}, lambda: CommandBTPolicy(task, bt).act
+        from ibt.evaluate.policies import BTPolicy
+
+        return {"bt": bt_digest(bt)}, lambda: BTPolicy(task, bt).act
     return {"tree": tree_key(tree)}, lambda: TreePolicy(task, tree).act
 
 

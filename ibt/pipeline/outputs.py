@@ -88,10 +88,13 @@ def draw_front(rec: Recommendation, path: Path) -> None:
     from ibt.files import atomic_target
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
-    for stage, marker in (("distilled", "o"), ("refined", "s"), ("searched", "*"),
-                          ("polished", "X"), ("distilled, relational", "^"),
-                          ("refined, relational", "D"), ("searched, relational", "P"),
-                          ("polished, relational", "p")):
+    markers = dict((("distilled", "o"), ("refined", "s"), ("searched", "*"), ("polished", "X"),
+                    ("distilled, relational", "^"), ("refined, relational", "D"),
+                    ("searched, relational", "P"), ("polished, relational", "p")))
+    labels = list(dict.fromkeys([*markers, *(c.label for c in rec.candidates)]))
+    spare = iter("v<>hH8d1234")  # every other learner's stages (oblique, controller, a user's)
+    for stage in labels:
+        marker = markers.get(stage) or next(spare, "o")
         points = [c for c in rec.candidates if c.label == stage]
         if not points:
             continue

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from ibt.cache.store import load_or_compute
 from ibt.distill.controller import ControllerArrays, ControllerConfig
 from ibt.distill.oblique import ObliqueArrays, ObliqueConfig
 from ibt.evaluate.rollouts import final_seeds, rollout
@@ -96,58 +95,37 @@ def _agent(task: Task, algo: str, cfg: Config) -> Any:
 def distilled(task: Task, algo: str, leaves: int, seed: int, cfg: Config
               ) -> ControllerArrays | ObliqueArrays:
     """The controller tree (``Box`` task) or oblique tree (discrete task) distilled from the
-    committed agent (cached)."""
-    from ibt.distill.controller import distill_controller
-    from ibt.distill.oblique import distill_oblique
+    committed agent under the study's budget (the engine's distillation stage, cached)."""
+    from ibt.engine.distil import distillation_of
     from ibt.refine.controller import tree_from_doc
 
-    agent = _agent(task, algo, cfg)
     config = replace(budget_of(task, cfg).distil, max_leaves=leaves)
-    params = {"task": task.key, "algo": algo, "expert_sha256": agent.digest, "seed": seed,
-              "config": config.as_params()}
+    run = distillation_of(cfg, _agent(task, algo, cfg), seed, learner_of(task), config)
+    return tree_from_doc(run["tree"])
 
-    def compute() -> dict[str, Any]:
-        learn = distill_controller if task.continuous else distill_oblique
-        record = learn(task, agent.load(), config, seed, progress=cfg.progress)  # type: ignore[arg-type]
-        return {"tree": record.best_tree.to_doc(), "iterations": record.iterations,
-                "wall_seconds": record.wall_seconds}
 
-    doc = load_or_compute("controller-distil", params, compute, cache_dir=cfg.cache_dir,
-                          refresh=cfg.refresh)
-    return tree_from_doc(doc["tree"])
+def learner_of(task: Task) -> str:
+    """The study's learner on ``task``: controller trees for a Box, oblique trees else."""
+    return LEARNER if task.continuous else OBLIQUE
 
 
 def refined(task: Task, algo: str, leaves: int, seed: int, cfg: Config) -> dict[str, Any]:
-    """The refinement record of the distilled tree (cached): candidates, stages, choice."""
-    from ibt.refine.controller import refine_controller
+    """The refinement record of the distilled tree (the engine's controller refinement,
+    cached): candidates, stages, choice."""
+    from ibt.engine.refine import controller_refinement
 
-    source = distilled(task, algo, leaves, seed, cfg)
     budget = budget_of(task, cfg)
-    params = {"task": task.key, "source": source.digest(), "seed": seed,
-              "config": budget.refine.as_params(), "tolerance": budget.tolerance}
-
-    def compute() -> dict[str, Any]:
-        return refine_controller(source, task, budget.refine, seed, tolerance=budget.tolerance,
-                                 progress=cfg.progress).to_doc()
-
-    return load_or_compute("controller-refine", params, compute, cache_dir=cfg.cache_dir,
-                           refresh=cfg.refresh)
+    return controller_refinement(cfg, task, distilled(task, algo, leaves, seed, cfg), seed,
+                                 budget.refine, budget.tolerance)
 
 
 def final_returns(task: Task, what: dict[str, Any], act: Any, episodes: int, cfg: Config
                   ) -> list[float]:
-    """A policy's returns on the first ``episodes`` final episodes (cached as ``returns``)."""
-    seeds = final_seeds(episodes)
-    params = {"task": task.key, "episodes": len(seeds), "first_seed": seeds[0], **what}
+    """A policy's returns on the first ``episodes`` final episodes (the engine's measurement,
+    kind ``returns``)."""
+    from ibt.engine.measure import returns_of
 
-    def compute() -> dict[str, Any]:
-        done = rollout(task, act, seeds, n_envs=32)
-        return {"returns": [float(r) for r in done.returns],
-                "lengths": [int(n) for n in done.lengths]}
-
-    doc = load_or_compute("returns", params, compute, cache_dir=cfg.cache_dir,
-                          refresh=cfg.refresh)
-    return list(doc["returns"])
+    return returns_of(cfg, task, what, lambda: act, final_seeds(episodes)).returns
 
 
 def verified(task: Task, algo: str, leaves: int, seed: int, cfg: Config
@@ -187,7 +165,7 @@ def controller_row(task: Task, algo: str, leaves: int, seed: int, cfg: Config,
            else BTPolicy(task, built.bt).act)
     returns = np.asarray(final_returns(task, {"bt": bt_digest(built.bt)}, act, episodes, cfg))
     size = tree.size()
-    learner = LEARNER if task.continuous else OBLIQUE
+    learner = learner_of(task)
     row = {"task": task.name, "agent": algo, "learner": learner, "leaves_limit": leaves,
            "seed": seed, "rules": built.rules, "bt_nodes": built.bt.node_count,
            "tests": size["tests"], "test_terms": size["test_terms"],
