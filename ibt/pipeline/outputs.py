@@ -306,7 +306,11 @@ def report_text(rec: Recommendation, out: Path) -> str:
         "*Relational* trees come from the same loop with a learner whose splits may test "
         "`w1 * x_i + w2 * x_j` where that beats every single-feature split by a margin; one "
         "is recommended only where its BT is smaller than every single-feature one that keeps "
-        "the target.",
+        "the target. *Oblique* trees (discrete actions) test up to four features at once, "
+        "`w1 * x1 + ... + w4 * x4 > t`; *controller* trees (continuous actions) also send "
+        "commands linear in up to four features; both lay out one rule per leaf, are refined "
+        "by return (thresholds, weights, biases), and their BT is checked to send exactly "
+        "their tree's decisions.",
         "", *rows, "", "![front](front.png)", "", *ladder_text(rec),
         "## The BT as rules (the first rule that holds decides)", "",
         *fenced(rules_text(c.bt)), "", "![the BT](bt.png)", "",
