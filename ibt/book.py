@@ -213,7 +213,7 @@ def front_page_headline(readme_text: str, page_dir: str) -> str:
 
     if HEADLINE_BEGIN not in readme_text or HEADLINE_END not in readme_text:
         raise ValueError(f"README.md lacks the headline markers {HEADLINE_BEGIN!r} ... "
-                         f"{HEADLINE_END!r}: run notebooks/11_headline.ipynb")
+                         f"{HEADLINE_END!r}: run notebooks/12_headline.ipynb")
     block = readme_text.split(HEADLINE_BEGIN, 1)[1].split(HEADLINE_END, 1)[0].strip()
     up = "/".join(".." for part in Path(page_dir).parts if part not in ("", "."))
 

@@ -25,7 +25,7 @@ difference and the row; it exits 1 on a difference beyond a row's tolerance, 2 o
 ``--smoke`` checks a few rows: the smallest headline BT's node count, and its mean and
 retention on its first few episodes within ``3`` standard errors of those few episodes (a
 deterministic replay: the same episodes every time), and the first claim's rows.
-``notebooks/09_report.ipynb`` rewrites the table with the report.
+``notebooks/12_headline.ipynb`` rewrites the table after the headline it reads.
 """
 
 from __future__ import annotations
