@@ -26,17 +26,19 @@ def _agent(continuous: bool, n_features: int) -> Any:
 
 
 def test_the_built_in_learners_in_the_ladders_order_with_their_kinds():
-    assert list(LEARNERS)[:3] == ["axis", "relational", "box"]
+    assert list(LEARNERS)[:5] == ["axis", "relational", "box", "oblique", "controller"]
+    assert get_learner("oblique").kind == get_learner("controller").kind == "controller-distil"
     assert [(get_learner(n).actions, get_learner(n).kind) for n in ("axis", "relational", "box")] \
         == [(DISCRETE, "distill"), (DISCRETE, "distill-rel"), (BOX, "box-distill")]
     assert rank("axis") < rank("relational")
 
 
 @pytest.mark.parametrize(("continuous", "n_features", "combined", "offered"), [
-    (False, 4, True, ("axis", "relational")),
-    (False, 4, False, ("axis",)),  # relational tests off
+    (False, 4, True, ("axis", "relational", "oblique")),
+    (False, 4, False, ("axis",)),  # tests that combine features off
     (False, 1, True, ("axis",)),  # one feature: nothing to combine
-    (True, 3, True, ("box",)),
+    (True, 3, True, ("box", "controller")),
+    (True, 3, False, ("box",)),
 ])
 def test_an_agent_is_offered_the_learners_that_accept_its_actions(continuous, n_features,
                                                                    combined, offered):
