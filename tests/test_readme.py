@@ -29,7 +29,6 @@ BLOCKS = {
     "python -m ibt pipeline MyEnv-v0": ("run", "the one command, on the README's my_envs"),
     "python -m ibt distill MyEnv-v0": ("run", "the single steps on the README's my_envs"),
     "# my_envs.py": ("run", "the user's module (with a MyEnv class added)"),
-    "dask scheduler": ("skip", "needs a Dask cluster"),
 }
 #: budget flags appended to a command so that the block runs in seconds here
 FAST = {"distill": ["--iterations", "2", "--labels", "100", "--selection-episodes", "2"],
