@@ -55,13 +55,14 @@ def silent_scheduler():
 
 def test_a_dask_address_that_never_answers_fails_naming_the_variable(silent_scheduler,
                                                                     monkeypatch):
+    pytest.importorskip("dask.distributed")  # imported before the clock starts
     monkeypatch.setenv(parallel.DASK_ENV, silent_scheduler)
     monkeypatch.setattr(parallel, "DASK_TIMEOUT", 2.0)
     began = time.monotonic()
     with pytest.raises(RuntimeError, match=r"IBT_DASK_SCHEDULER=tcp://127\.0\.0\.1:\d+: no "
                                            r"Dask scheduler answered within 2 s"):
         parallel.parallel_map(abs, [(1,), (-2,)], n_jobs=2)
-    assert time.monotonic() - began < 10
+    assert time.monotonic() - began < 20  # the timeout and the thread's 5 s, on a busy machine
     assert parallel.DASK_TIMEOUT <= 60 and parallel.dask_client.__defaults__ == (None,)
 
 
