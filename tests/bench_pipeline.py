@@ -146,6 +146,7 @@ def run(case: Case) -> dict[str, object]:
     if match:
         row.update(search_speed(out / "cache"))
         row.update(search_choices(out / "report.md"))
+        row["learner"] = recommended_learner(out / "report.md")
     if case.confirm and match:
         row.update(confirm(case, out / "bt.json", case.confirm))
     return row
@@ -188,6 +189,19 @@ def search_speed(cache: Path) -> dict[str, object]:
 SEARCH = re.compile(r"Search at leaf limit (\d+) [^:]*: \d+ restarts chosen among on \d+ "
                     r"held-out episodes of their own \(([^)]*)\); the best \d+ polished "
                     r"scored \(([^)]*)\) there; seed (\d+) won")
+
+
+RECOMMENDED = re.compile(r"Recommended: a \*\*\d+-node BT\*\* \([^)]*\) of the ([a-z, ]+?) tree")
+
+
+def recommended_learner(report: Path) -> str | None:
+    """The learner whose tree the recommended BT came from, as the report labels it
+    (``refined, oblique``: oblique; a label without one: the plain learner of its actions)."""
+    found = RECOMMENDED.search(" ".join(report.read_text().split())) if report.exists() else None
+    if found is None:
+        return None
+    stage, _, learner = found.group(1).partition(", ")
+    return learner or "axis or box"
 
 
 def search_choices(report: Path) -> dict[str, object]:
