@@ -200,7 +200,7 @@ def recommended_learner(report: Path) -> str | None:
     found = RECOMMENDED.search(" ".join(report.read_text().split())) if report.exists() else None
     if found is None:
         return None
-    stage, _, learner = found.group(1).partition(", ")
+    _, _, learner = found.group(1).partition(", ")
     return learner or "axis or box"
 
 

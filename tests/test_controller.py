@@ -304,3 +304,18 @@ def test_refinement_by_return_is_deterministic_and_keeps_the_shape():
     best = first.candidates[first.best_index]
     assert np.array_equal(best.left, tree.left)
     assert np.array_equal(best.weights != 0, tree.weights != 0) or first.stages[-1].get("digits")
+
+
+def test_a_tree_with_nothing_to_tune_is_kept_as_it_is():
+    from ibt.distill.oblique import ObliqueArrays
+    from ibt.refine.controller import refine_controller
+    from ibt.tasks.settings import RefineConfig
+
+    task = get_task("CartPole-v1")
+    one_leaf = ObliqueArrays(np.array([-1]), np.array([-1]), np.zeros((1, 4)), np.zeros(1),
+                             np.array([1]))
+    config = RefineConfig(stages=("cma",), episodes=8, cma_episodes=2, selection_episodes=2,
+                          n_envs=4)
+    record = refine_controller(one_leaf, task, config, progress=False)
+    assert record.stages[0]["generations"] == 0
+    assert np.array_equal(record.candidates[record.best_index].action, one_leaf.action)

@@ -71,12 +71,21 @@ def test_the_lead_bt_file_is_the_one_its_1000_episodes_evaluated():
     bt = load_json(ROOT / row.json_file)
     assert bt.node_count == row.bt_nodes
     digest = bt_digest(bt)
-    entries = [json.loads((d / "payload.json").read_text())
-               for d in (ROOT / "data" / "cache" / "protocol").iterdir()
-               if json.loads((d / "manifest.json").read_text())["params"]["bt"] == digest]
-    assert len(entries) == 1
-    assert entries[0]["mean_return"] == pytest.approx(row.mean_return)
-    assert entries[0]["share_at_threshold"] == pytest.approx(row.share_200)
+    found = []  # a protocol entry (a summary), or a returns entry (every episode's return)
+    for kind in ("protocol", "returns"):
+        for d in (ROOT / "data" / "cache" / kind).iterdir():
+            params = json.loads((d / "manifest.json").read_text())["params"]
+            if params.get("bt") == digest and params.get("episodes", 1000) == row.episodes:
+                payload = json.loads((d / "payload.json").read_text())
+                if kind == "returns":
+                    returns = payload["returns"]
+                    payload = {"mean_return": sum(returns) / len(returns),
+                               "share_at_threshold": sum(r >= 200 for r in returns)
+                               / len(returns)}
+                found.append(payload)
+    assert len(found) == 1
+    assert found[0]["mean_return"] == pytest.approx(row.mean_return)
+    assert found[0]["share_at_threshold"] == pytest.approx(row.share_200)
 
 
 def test_smoke_reads_the_committed_cache_under_the_paper_budgets(tmp_path):

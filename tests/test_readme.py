@@ -255,8 +255,9 @@ def test_the_groot2_sentence_is_the_headline_csv():
     named = " and ".join(f"{r.task} ({r.expert.upper()}, {r.bt_nodes} nodes)"
                          for r in fits.itertuples())
     said = (f"Groot2's free edition monitors a running BT of up to {GROOT2_FREE_NODES} nodes: of "
-            f"the headline BTs, {named} fit; the others have {others.bt_nodes.min()} to "
-            f"{others.bt_nodes.max()} nodes.")
+            f"the headline BTs, " + (f"all {len(fits)} fit." if others.empty else
+                                     f"{named} fit; the others have {others.bt_nodes.min()} to "
+                                     f"{others.bt_nodes.max()} nodes."))
     assert said in " ".join(README.read_text().split())
 
 

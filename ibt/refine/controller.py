@@ -178,6 +178,8 @@ def _cma_stage(tree: Tree, task: Task, config: RefineConfig, episodes: RefineEpi
         return ControllerPopulation(tree, p["threshold"], p["split"], p["bias"], p["weights"],
                                     low, high)
 
+    if not len(scale):  # one leaf and nothing to tune (an oblique tree that always acts alike)
+        return tree, {"generations": 0}
     best, info = cma_search(len(scale), config, episodes, rng, population)
     if best is None:
         return tree, info

@@ -184,10 +184,30 @@ def front_page_markdown(headline: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+GROOT2_FREE_NODES = 20  #: the largest BT Groot2's free edition monitors
+
+
+def groot2_sentence(headline: pd.DataFrame) -> str:
+    """Which headline BTs Groot2's free edition can monitor (at most
+    :data:`GROOT2_FREE_NODES` nodes), with their node counts."""
+    bts = headline.drop_duplicates("json_file")
+    fits = bts[bts.bt_nodes <= GROOT2_FREE_NODES]
+    others = bts[bts.bt_nodes > GROOT2_FREE_NODES]
+    named = " and ".join(f"{md(r.task)} ({md(str(r.expert).upper())}, {int(r.bt_nodes)} nodes)"
+                         for r in fits.itertuples())
+    head = (f"Groot2's free edition monitors a running BT of up to {GROOT2_FREE_NODES} nodes: "
+            "of the headline BTs, ")
+    if others.empty:
+        return head + f"all {len(fits)} fit."
+    return head + (f"{named} fit; the others have {int(others.bt_nodes.min())} to "
+                   f"{int(others.bt_nodes.max())} nodes." if len(fits) else "none fits.")
+
+
 def front_page_block(headline: pd.DataFrame) -> str:
     """The README's generated headline block (between :data:`HEADLINE_BEGIN` and
-    :data:`HEADLINE_END`)."""
-    return "\n".join([HEADLINE_BEGIN, "", front_page_markdown(headline), "", HEADLINE_END])
+    :data:`HEADLINE_END`): the table, then which BTs Groot2's free edition monitors."""
+    return "\n".join([HEADLINE_BEGIN, "", front_page_markdown(headline), "",
+                      groot2_sentence(headline), "", HEADLINE_END])
 
 
 def deviations_block(res: Results) -> str:
