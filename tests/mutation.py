@@ -45,6 +45,7 @@ BEGIN, END = "<!-- mutation summary: begin -->", "<!-- mutation summary: end -->
 PYTEST_ARGS = '-x -q -m "not slow" -p no:cacheprovider'
 DEFAULT_SAMPLE, DEFAULT_SEED = 30, 0
 IN_ANNOTATION = "in a type annotation"
+NOT_PYTHON = "the mutated module does not compile"
 
 #: module (a glob relative to the repository root; the first match wins) -> the test files that
 #: concern it. A module matched by no key runs against the test files that import it.
@@ -64,8 +65,26 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
 }
 
 #: Survivors that change no behaviour: (module, the line as written, the line as mutated,
-#: why no test can tell them apart). Lines are compared without surrounding blanks.
-EQUIVALENT: tuple[tuple[str, str, str, str], ...] = ()
+#: why no test can tell them apart). Lines are compared without blanks.
+EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
+    ("ibt/bt/executors.py",
+     'where = f"feature {bad[-1]}" + (f" of row {bad[0]}" if bad.size > 1 else "")',
+     'where = f"feature {bad[-1]}" + (f" of row {bad[0]}" if bad.size != 1 else "")',
+     "`bad` is one row of `np.argwhere` on an array of at least one dimension, so its size "
+     "is never below 1: `> 1` and `!= 1` agree"),
+    ("ibt/bt/executors.py", "ok = not visit(children[0], depth + 1)",
+     "ok = not visit(children[-1], depth + 1)",
+     "an Inverter has exactly one child, so `children[0]` and `children[-1]` name it"),
+    ("ibt/bt/executors.py",
+     'if x.ndim != 2 or x.shape[1] != io["n_features"]:',
+     'if x.ndim is not 2 or x.shape[1] != io["n_features"]:',
+     "CPython keeps one object per small integer, so `ndim is not 2` and `ndim != 2` agree"),
+    ("ibt/bt/executors.py",
+     'if x.ndim != 2 or x.shape[1] != io["n_features"]:',
+     'if x.ndim != 2 or x.shape[1] is not io["n_features"]:',
+     "CPython keeps one object per small integer (a feature count is one), so `is not` and "
+     "`!=` agree"),
+)
 
 
 @dataclass(frozen=True)
@@ -80,6 +99,7 @@ class Row:
     killed: int
     survived: int
     equivalent: int
+    not_python: int
     incompetent: int
 
     @property
@@ -132,12 +152,15 @@ def test_command(tests: tuple[str, ...]) -> str:
 
 
 def _equivalence(module: str, diff: str) -> str | None:
-    removed = [ln[1:].strip() for ln in diff.splitlines()
+    def bare(line: str) -> str:  # Cosmic Ray may respace a line it mutates
+        return "".join(line.split())
+
+    removed = [bare(ln[1:]) for ln in diff.splitlines()
                if ln.startswith("-") and not ln.startswith("---")]
-    added = [ln[1:].strip() for ln in diff.splitlines()
+    added = [bare(ln[1:]) for ln in diff.splitlines()
              if ln.startswith("+") and not ln.startswith("+++")]
     for mod, before, after, reason in EQUIVALENT:
-        if mod == module and before in removed and after in added:
+        if mod == module and bare(before) in removed and bare(after) in added:
             return reason
     return None
 
@@ -212,11 +235,20 @@ def run_module(module: str, sample: int, seed: int) -> None:
                 worker_outcome=WorkerOutcome.SKIPPED, output=IN_ANNOTATION))
             noted = {w.job_id for w in notes}
             items = [w for w in everything if w.job_id not in noted]
-            chosen = set(random.Random(f"{module}:{seed}").sample(
-                range(len(items)), min(sample, len(items))))
-            db.set_multiple_results(
-                [w.job_id for i, w in enumerate(items) if i not in chosen],
-                WorkResult(worker_outcome=WorkerOutcome.SKIPPED))
+            random.Random(f"{module}:{seed}").shuffle(items)
+            code = source.read_text(encoding="utf-8")
+            chosen: set[str] = set()
+            for item in items:  # the first ``sample`` mutants, in a seeded order, that compile
+                if len(chosen) == sample:
+                    break
+                if _compiles(code, item.mutations[0]):
+                    chosen.add(item.job_id)
+                else:
+                    db.set_result(item.job_id, WorkResult(
+                        worker_outcome=WorkerOutcome.SKIPPED, output=NOT_PYTHON))
+            judged = chosen | {job for job, r in db.results if r.output == NOT_PYTHON}
+            db.set_multiple_results([w.job_id for w in items if w.job_id not in judged],
+                                    WorkResult(worker_outcome=WorkerOutcome.SKIPPED))
         done = {job: result for job, result in db.results}
         ordered = sorted(db.work_items, key=lambda w: (
             w.mutations[0].operator_name, w.mutations[0].occurrence))
@@ -248,18 +280,22 @@ def summarise(module: str) -> tuple[Row, list[tuple[str, str]], list[tuple[str, 
     if not db_path.exists() or not meta_path.exists():
         return None
     tests = json.loads(meta_path.read_text())["tests"]
-    counts = dict.fromkeys(("killed", "survived", "equivalent", "incompetent"), 0)
+    counts = dict.fromkeys(("killed", "survived", "equivalent", "not_python", "incompetent"), 0)
+    code = (ROOT / module).read_text(encoding="utf-8")
     survivors, equivalents = [], []
     with use_db(str(db_path), WorkDB.Mode.open) as db:
         total = db.num_work_items
         results = dict(db.results)
         sampled = sum(1 for r in results.values() if r.worker_outcome != WorkerOutcome.SKIPPED)
         in_annotations = sum(1 for r in results.values() if r.output == IN_ANNOTATION)
-        for result in results.values():
+        specs = {w.job_id: w.mutations[0] for w in db.work_items}
+        for job, result in results.items():
             if result.worker_outcome in (WorkerOutcome.SKIPPED, WorkerOutcome.NO_TEST):
                 continue
             if result.worker_outcome != WorkerOutcome.NORMAL:
                 counts["incompetent"] += 1
+            elif not _compiles(code, specs[job]):
+                counts["not_python"] += 1
             elif result.test_outcome == TestOutcome.SURVIVED:
                 diff = result.diff or ""
                 reason = _equivalence(module, diff)
@@ -296,6 +332,23 @@ def annotation_spans(path: Path) -> list[tuple[tuple[int, int], tuple[int, int]]
             for n in notes]
 
 
+def _compiles(code: str, spec: object) -> bool:
+    """Whether the mutant ``spec`` of ``code`` is valid Python (Cosmic Ray also rewrites the
+    bare ``*`` of keyword-only parameters, which no test needs to notice)."""
+    from cosmic_ray.mutating import mutate_code
+    from cosmic_ray.plugins import get_operator
+
+    operator = get_operator(spec.operator_name)(**spec.operator_args)  # type: ignore[attr-defined]
+    mutated = mutate_code(code, operator, spec.occurrence)  # type: ignore[attr-defined]
+    if mutated is None:
+        return False
+    try:
+        compile(mutated, "<mutant>", "exec")
+    except SyntaxError:
+        return False
+    return True
+
+
 def _in_annotation(spans: list[tuple[tuple[int, int], tuple[int, int]]],
                    start: tuple[int, int], end: tuple[int, int]) -> bool:
     return any(a <= tuple(start) and tuple(end) <= b for a, b in spans)
@@ -312,7 +365,7 @@ def write_summary() -> None:
     from ibt.files import atomic_write_text
 
     fields = ("module", "tests", "mutants", "in_annotations", "sampled", "killed", "survived",
-              "equivalent", "incompetent", "score_pct")
+              "equivalent", "not_python", "incompetent", "score_pct")
     old: dict[str, dict[str, str]] = {}
     if SUMMARY.exists():
         with SUMMARY.open(newline="") as f:

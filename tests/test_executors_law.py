@@ -7,6 +7,8 @@ several actions in one tick."""
 
 from __future__ import annotations
 
+from dataclasses import FrozenInstanceError
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -119,6 +121,8 @@ def test_a_tick_records_each_node_once_with_its_status_in_depth_first_order():
     inverted = BehaviorTree(Selector((Sequence((Inverter(Condition(0, "<=", 0.0)), Action(1))),
                                       Action(0))), FEATURES, ACTIONS)
     action, trace = tick(inverted, [1.0, 0.0])
+    with pytest.raises(FrozenInstanceError):  # a trace is a record: mutant ``frozen=False``
+        trace[0].success = False  # type: ignore[misc]
     assert action == 1
     assert [(s.index, s.depth, s.success, s.label) for s in trace] == [
         (0, 0, True, "Selector"), (1, 1, True, "Sequence"), (2, 2, True, "Inverter"),
