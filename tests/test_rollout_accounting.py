@@ -17,8 +17,8 @@ CARTPOLE = get_task("CartPole-v1")
 
 
 def test_the_budget_counts_steps_and_stops_only_starting_episodes():
-    """Mutants: ``steps += len(active)`` counting batches, ``steps >= budget`` as ``>``, or
-    the budget test dropped."""
+    """Mutants: ``steps += len(active)`` counting batches, ``steps >= budget`` as ``>`` (an
+    episode started on a budget spent exactly), or the budget test dropped."""
     budget, n_envs = 25, 3
     batch_sizes: list[int] = []
     started_at: dict[int, int] = {}
@@ -35,6 +35,13 @@ def test_the_budget_counts_steps_and_stops_only_starting_episodes():
     assert sum(batch_sizes) == int(result.lengths.sum()) >= budget
     assert sorted(started_at) == list(range(len(result.returns)))
     assert np.all(result.lengths > 0)  # every started episode ran to its end
+    # a budget spent exactly by the first episode starts no second one
+    first = rollout(CARTPOLE, push_left, [0], n_envs=1, indexed=True)
+    exact = int(first.lengths[0])
+    spent = rollout(CARTPOLE, push_left, [0, 1, 2], n_envs=1, budget=exact, indexed=True)
+    assert spent.lengths.tolist() == [exact]
+    assert len(rollout(CARTPOLE, push_left, [0, 1, 2], n_envs=1, budget=exact + 1,
+                       indexed=True).returns) == 2
     unlimited = rollout(CARTPOLE, lambda obs: np.zeros(len(obs), dtype=np.int64), range(5),
                         n_envs=2)
     assert len(unlimited.returns) == 5
