@@ -31,6 +31,7 @@ import shlex
 import signal
 import sys
 import time
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,6 +76,12 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
     ("ibt/bt/executors.py", "ok = not visit(children[0], depth + 1)",
      "ok = not visit(children[-1], depth + 1)",
      "an Inverter has exactly one child, so `children[0]` and `children[-1]` name it"),
+    ("ibt/synth/imitation.py", "return _condition(term[0])", "return _condition(term[-1])",
+     "the branch is taken for a term of exactly one literal, which `term[0]` and `term[-1]` "
+     "both name"),
+    ("ibt/synth/imitation.py", "return next(rs.k for rs in sets if rs.action == action)",
+     "return next(rs.k for rs in sets if rs.action is action)",
+     "actions are small Python integers, one object each in CPython, so `is` and `==` agree"),
     ("ibt/bt/executors.py",
      'if x.ndim != 2 or x.shape[1] != io["n_features"]:',
      'if x.ndim is not 2 or x.shape[1] != io["n_features"]:',
@@ -85,6 +92,10 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "CPython keeps one object per small integer (a feature count is one), so `is not` and "
      "`!=` agree"),
 )
+
+#: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.
+KEYWORD_ONLY = ("the bare `*` of a signature as `/`: the parameters after it could then be "
+                "passed by position too, but every caller names them, so no call changes")
 
 
 @dataclass(frozen=True)
@@ -159,6 +170,9 @@ def _equivalence(module: str, diff: str) -> str | None:
                if ln.startswith("-") and not ln.startswith("---")]
     added = [bare(ln[1:]) for ln in diff.splitlines()
              if ln.startswith("+") and not ln.startswith("+++")]
+    if (len(removed) == len(added) == 1 and removed[0].startswith("def")
+            and removed[0].replace("*,", "/,") == added[0]):
+        return KEYWORD_ONLY
     for mod, before, after, reason in EQUIVALENT:
         if mod == module and bare(before) in removed and bare(after) in added:
             return reason
@@ -343,7 +357,9 @@ def _compiles(code: str, spec: object) -> bool:
     if mutated is None:
         return False
     try:
-        compile(mutated, "<mutant>", "exec")
+        with warnings.catch_warnings():  # e.g. "is not" with a literal: valid, if odd
+            warnings.simplefilter("ignore", SyntaxWarning)
+            compile(mutated, "<mutant>", "exec")
     except SyntaxError:
         return False
     return True
