@@ -6,13 +6,15 @@ that maps modules to tests); a module not named there runs against the test file
 it, so the mapping follows a module that is split or renamed. Mutants are sampled with a fixed
 seed (``--sample``, ``--seed``): the same sample on the same source. Sessions are Cosmic Ray
 work databases under ``build/mutation/`` and resume: a rerun tests the pending mutants and
-re-tests the survivors (the tests may have grown), and keeps the killed ones unless the module
-changed. A survivor listed in :data:`EQUIVALENT` (a change that alters no behaviour) counts as
-equivalent, with its reason. The summary, ``data/results/mutation_summary.csv``, and the
-generated part of ``docs/mutation.md`` are rewritten from the sessions after each module.
+re-tests the survivors (the tests may have grown; not the known equivalents), and keeps the
+killed ones unless the module changed; the unmutated run, which must pass, is skipped when
+neither the module nor its tests changed since it last passed. A survivor listed in
+:data:`EQUIVALENT` (a change that alters no behaviour) counts as equivalent, with its reason.
+The summary, ``data/results/mutation_summary.csv``, and the generated part of
+``docs/mutation.md`` are rewritten from the sessions after each module.
 
-Usage: ``python -m tests.mutation [MODULE ...] [--sample N] [--seed S]`` (MODULE: a path
-such as ``ibt/bt/executors.py``; none: every core module).
+Usage: ``python -m tests.mutation [MODULE ...] [--sample N] [--seed S]`` (MODULE: a path such
+as ``ibt/bt/executors.py``; none: every core module).
 """
 
 from __future__ import annotations
@@ -232,12 +234,17 @@ def run_module(module: str, sample: int, seed: int) -> None:
     old_meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
     fresh = {k: old_meta.get(k) for k in meta} != meta or not db_path.exists()
     command = test_command(tests)
-    start = time.monotonic()
-    outcome, output = run_tests(command, 1800)
-    baseline = time.monotonic() - start
-    if outcome != TestOutcome.SURVIVED:
-        sys.exit(f"{module}: its tests fail on the unmutated code; fix them first:\n"
-                 f"{command}\n{output[-2000:]}")
+    tests_digest = hashlib.sha256(b"".join(
+        (ROOT / t.partition("::")[0]).read_bytes() for t in tests) + command.encode()).hexdigest()
+    if old_meta.get("source") == digest and old_meta.get("tests_digest") == tests_digest:
+        baseline = float(old_meta["baseline_s"])  # passed on this very code and these tests
+    else:
+        start = time.monotonic()
+        outcome, output = run_tests(command, 1800)
+        baseline = time.monotonic() - start
+        if outcome != TestOutcome.SURVIVED:
+            sys.exit(f"{module}: its tests fail on the unmutated code; fix them first:\n"
+                     f"{command}\n{output[-2000:]}")
     timeout = max(60.0, 2 * baseline)  # a mutant that loops forever is killed by it
     if fresh:
         db_path.unlink(missing_ok=True)
@@ -272,8 +279,10 @@ def run_module(module: str, sample: int, seed: int) -> None:
             w.mutations[0].operator_name, w.mutations[0].occurrence))
         todo = [w for w in ordered if w.job_id not in done
                 or (done[w.job_id].worker_outcome == WorkerOutcome.NORMAL
-                    and done[w.job_id].test_outcome == TestOutcome.SURVIVED)]
-        meta_path.write_text(json.dumps({**meta, "tests": list(tests)}))
+                    and done[w.job_id].test_outcome == TestOutcome.SURVIVED
+                    and not _equivalence(module, done[w.job_id].diff or ""))]
+        meta_path.write_text(json.dumps({**meta, "tests": list(tests),
+                                         "tests_digest": tests_digest, "baseline_s": baseline}))
         print(f"{module}: {len(todo)} mutants to test against {len(tests)} test files "
               f"(baseline {baseline:.0f} s, timeout {timeout:.0f} s)", flush=True)
         for n, item in enumerate(todo, 1):
