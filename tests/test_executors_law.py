@@ -127,6 +127,10 @@ def test_a_tick_records_each_node_once_with_its_status_in_depth_first_order():
     assert [(s.index, s.depth, s.success, s.label) for s in trace] == [
         (0, 0, True, "Selector"), (1, 1, True, "Sequence"), (2, 2, True, "Inverter"),
         (3, 3, False, "x0 <= 0"), (4, 2, True, "a1")]
+    shallow = BehaviorTree(Sequence((Inverter(Condition(0, ">", 0.0)), Action(1))), FEATURES,
+                           ACTIONS)  # an Inverter at an odd depth: mutant ``depth ^ 1``
+    assert [(s.index, s.depth, s.success) for s in tick(shallow, [-1.0, 0.0])[1]] == [
+        (0, 0, True), (1, 1, True), (2, 2, False), (3, 1, True)]
 
 
 def test_decide_batch_takes_a_batch_and_nothing_else():
