@@ -64,7 +64,8 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/synth/rules.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
                            "tests/test_synthesis.py"),
     "ibt/evaluate/rollouts.py": ("tests/test_seed_blocks.py", "tests/test_retention_law.py",
-                                 "tests/test_rollout_accounting.py", "tests/test_mutants.py",
+                                 "tests/test_rollout_accounting.py", "tests/test_env_faults.py",
+                                 "tests/test_mutants.py",
                                  # its quick test (the others run the CLI on hostile envs
                                  # or an endless one)
                                  "tests/test_hostile_env.py::test_retention_is_undefined_not_"
