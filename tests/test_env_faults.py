@@ -109,5 +109,6 @@ def test_an_observation_is_judged_by_its_shape_its_numbers_and_their_finiteness(
         "it returned an observation of dtype <U1, not numbers")
     assert _bad_obs(task, np.array([np.nan, np.inf]), (2,)) == (
         "it returned a non-finite observation (x0=nan, x1=inf)")
-    assert _bad_obs(task, np.array([1.0, 2.0, np.inf, np.nan, np.inf]), None) == (
-        "it returned a non-finite observation (2=inf, 3=nan, 4=inf)")  # unnamed past the names
+    assert _bad_obs(task, np.array([1.0, 2.0, np.inf, np.nan, np.inf, -np.inf]), None) == (
+        "it returned a non-finite observation (2=inf, 3=nan, 4=inf)")  # the first three, and
+    # unnamed past the task's names
