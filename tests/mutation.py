@@ -56,7 +56,8 @@ NOT_PYTHON = "the mutated module does not compile"
 TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/executors.py": ("tests/test_executors_law.py", "tests/test_mutants.py",
                             "tests/test_bt.py", "tests/test_nonfinite.py"),
-    "ibt/bt/model.py": ("tests/test_executors_law.py", "tests/test_bt.py",
+    "ibt/bt/model.py": ("tests/test_bt_model_law.py", "tests/test_executors_law.py",
+                        "tests/test_bt.py",
                         "tests/test_nonfinite.py", "tests/test_mutants.py"),
     "ibt/bt/coverage.py": ("tests/test_bt.py",),
     "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
