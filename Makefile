@@ -9,7 +9,7 @@ export SDL_VIDEODRIVER := dummy
 export PYTHONHASHSEED := 0
 
 .DEFAULT_GOAL := help
-.PHONY: bench-pipeline help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book verify
+.PHONY: bench-pipeline mutants help setup check-dot figures animations reproduce smoke test test-slow lint lab lock clean distclean book verify
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -51,6 +51,10 @@ reproduce: setup ## recompute everything from scratch: experts, grids, figures (
 
 bench-pipeline: setup ## time `python -m ibt pipeline` on users' tasks and committed experts (data/results/pipeline_bench.csv; an hour with LunarLander)
 	PYTHONPATH=$(CURDIR) $(BIN)/python -m tests.bench_pipeline $(CASES)
+
+mutants: setup ## mutation testing of the core, on demand (Cosmic Ray, sampled, one worker: docs/mutation.md)
+	@start=$$(date +%s); nice -n 15 $(BIN)/python -m tests.mutation $(MODULES); \
+	echo "make mutants: $$(( $$(date +%s) - start )) s"
 
 smoke: setup ## run every notebook under the smoke profile into build/smoke (seconds each)
 	@mkdir -p build/smoke

@@ -1,0 +1,481 @@
+"""Mutation testing of the core with Cosmic Ray (``make mutants``): one small change to a module
+at a time, then the tests that concern that module; a change no test notices is a survivor.
+
+Each core module runs against the test files named for it in :data:`TESTS_OF` (the one place
+that maps modules to tests); a module not named there runs against the test files that import
+it, so the mapping follows a module that is split or renamed. Mutants are sampled with a fixed
+seed (``--sample``, ``--seed``): the same sample on the same source. Sessions are Cosmic Ray
+work databases under ``build/mutation/`` and resume: a rerun tests the pending mutants and
+re-tests the survivors (the tests may have grown; not the known equivalents), and keeps the
+killed ones unless the module changed; the unmutated run, which must pass, is skipped when
+neither the module nor its tests changed since it last passed. A survivor listed in
+:data:`EQUIVALENT` (a change that alters no behaviour) counts as equivalent, with its reason.
+The summary, ``data/results/mutation_summary.csv``, and the generated part of
+``docs/mutation.md`` are rewritten from the sessions after each module.
+
+Usage: ``python -m tests.mutation [MODULE ...] [--sample N] [--seed S]`` (MODULE: a path such
+as ``ibt/bt/executors.py``; none: every core module).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import contextlib
+import csv
+import fnmatch
+import hashlib
+import io
+import json
+import os
+import random
+import shlex
+import signal
+import sys
+import time
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SCOPE = ("ibt/bt/*.py", "ibt/synth/*.py", "ibt/evaluate/*.py", "ibt/engine/*.py",
+         "ibt/pipeline/owned_folder.py")
+SESSIONS = ROOT / "build" / "mutation"
+SUMMARY = ROOT / "data" / "results" / "mutation_summary.csv"
+DOC = ROOT / "docs" / "mutation.md"
+BEGIN, END = "<!-- mutation summary: begin -->", "<!-- mutation summary: end -->"
+PYTEST_ARGS = '-x -q -m "not slow" -p no:cacheprovider'
+DEFAULT_SAMPLE, DEFAULT_SEED = 30, 0
+IN_ANNOTATION = "in a type annotation"
+NOT_PYTHON = "the mutated module does not compile"
+
+#: module (a glob relative to the repository root; the first match wins) -> the test files (or
+#: single tests, ``file::name``) that concern it, quick ones first: a mutant's run stops at its
+#: first failure. A module matched by no key runs against the test files that import it.
+TESTS_OF: dict[str, tuple[str, ...]] = {
+    "ibt/bt/executors.py": ("tests/test_executors_law.py", "tests/test_mutants.py",
+                            "tests/test_bt.py", "tests/test_nonfinite.py"),
+    "ibt/bt/model.py": ("tests/test_bt_model_law.py", "tests/test_executors_law.py",
+                        "tests/test_bt.py",
+                        "tests/test_nonfinite.py", "tests/test_mutants.py"),
+    "ibt/bt/coverage.py": ("tests/test_bt.py",),
+    "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
+                               "tests/test_synthesis.py"),
+    "ibt/synth/rules.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
+                           "tests/test_synthesis.py"),
+    "ibt/evaluate/rollouts.py": ("tests/test_seed_blocks.py", "tests/test_retention_law.py",
+                                 "tests/test_rollout_accounting.py", "tests/test_env_faults.py",
+                                 "tests/test_mutants.py",
+                                 # its quick test (the others run the CLI on hostile envs
+                                 # or an endless one)
+                                 "tests/test_hostile_env.py::test_retention_is_undefined_not_"
+                                 "an_error_where_the_agent_is_random"),
+}
+
+#: Survivors that change no behaviour: (module, the line as written, the line as mutated,
+#: why no test can tell them apart). Lines are compared without blanks.
+EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
+    ("ibt/bt/executors.py",
+     'where = f"feature {bad[-1]}" + (f" of row {bad[0]}" if bad.size > 1 else "")',
+     'where = f"feature {bad[-1]}" + (f" of row {bad[0]}" if bad.size != 1 else "")',
+     "`bad` is one row of `np.argwhere` on an array of at least one dimension, so its size "
+     "is never below 1: `> 1` and `!= 1` agree"),
+    ("ibt/bt/executors.py", "ok = not visit(children[0], depth + 1)",
+     "ok = not visit(children[-1], depth + 1)",
+     "an Inverter has exactly one child, so `children[0]` and `children[-1]` name it"),
+    ("ibt/synth/imitation.py", "return _condition(term[0])", "return _condition(term[-1])",
+     "the branch is taken for a term of exactly one literal, which `term[0]` and `term[-1]` "
+     "both name"),
+    ("ibt/synth/imitation.py", "return next(rs.k for rs in sets if rs.action == action)",
+     "return next(rs.k for rs in sets if rs.action is action)",
+     "actions are small Python integers, one object each in CPython, so `is` and `==` agree"),
+    ("ibt/evaluate/rollouts.py", 'call = "reset" if slot_length[s] == 0 else "step"',
+     'call = "reset" if slot_length[s] <= 0 else "step"',
+     "an episode's length counts its steps from 0 and is never negative"),
+    ("ibt/evaluate/rollouts.py", "bad = np.flatnonzero(~np.isfinite(array.reshape(-1)))",
+     "bad = np.flatnonzero(~np.isfinite(array.reshape(-2)))",
+     "NumPy (the pinned 2.x) reads any negative size as the one inferred dimension"),
+    ("ibt/evaluate/rollouts.py", "slot_episode = [-1] * n_slots", "slot_episode = [1] * n_slots",
+     "every slot is started, which sets its episode (or -1), before anything reads it"),
+    ("ibt/bt/executors.py",
+     'if x.ndim != 2 or x.shape[1] != io["n_features"]:',
+     'if x.ndim is not 2 or x.shape[1] != io["n_features"]:',
+     "CPython keeps one object per small integer, so `ndim is not 2` and `ndim != 2` agree"),
+    ("ibt/bt/executors.py",
+     'if x.ndim != 2 or x.shape[1] != io["n_features"]:',
+     'if x.ndim != 2 or x.shape[1] is not io["n_features"]:',
+     "CPython keeps one object per small integer (a feature count is one), so `is not` and "
+     "`!=` agree"),
+)
+
+#: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.
+KEYWORD_ONLY = ("the bare `*` of a signature as `/`: the parameters after it could then be "
+                "passed by position too, but every caller names them, so no call changes")
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of the summary."""
+
+    module: str
+    tests: str
+    mutants: int
+    in_annotations: int
+    sampled: int
+    killed: int
+    survived: int
+    equivalent: int
+    not_python: int
+    incompetent: int
+
+    @property
+    def score(self) -> str:
+        judged = self.killed + self.survived
+        return f"{100.0 * self.killed / judged:.1f}" if judged else ""
+
+
+def core_modules() -> list[str]:
+    """Every module in the scope, as repository-relative paths."""
+    found = {p.relative_to(ROOT).as_posix() for pattern in SCOPE for p in ROOT.glob(pattern)}
+    return sorted(m for m in found if not m.endswith("__init__.py"))
+
+
+def _dotted(module: str) -> str:
+    return module.removesuffix(".py").replace("/", ".")
+
+
+def importers(module: str) -> tuple[str, ...]:
+    """The test files that import ``module`` (``import a.b.c``, ``from a.b.c import x`` or
+    ``from a.b import c``), found in their syntax trees."""
+    name = _dotted(module)
+    parent, _, leaf = name.rpartition(".")
+    found = []
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import) and any(a.name == name for a in node.names):
+                break
+            if isinstance(node, ast.ImportFrom) and (
+                    node.module == name
+                    or (node.module == parent and any(a.name == leaf for a in node.names))):
+                break
+        else:
+            continue
+        found.append(path.relative_to(ROOT).as_posix())
+    return tuple(found)
+
+
+def tests_of(module: str) -> tuple[str, ...]:
+    """The test files that concern ``module``: :data:`TESTS_OF`, else its importers."""
+    for pattern, tests in TESTS_OF.items():
+        if fnmatch.fnmatchcase(module, pattern):
+            return tuple(t for t in tests if (ROOT / t.partition("::")[0]).exists())
+    return importers(module)
+
+
+def test_command(tests: tuple[str, ...]) -> str:
+    return f"{shlex.quote(sys.executable)} -m pytest {PYTEST_ARGS} {' '.join(tests)}"
+
+
+def _equivalence(module: str, diff: str) -> str | None:
+    def bare(line: str) -> str:  # Cosmic Ray may respace a line it mutates
+        return "".join(line.split())
+
+    removed = [bare(ln[1:]) for ln in diff.splitlines()
+               if ln.startswith("-") and not ln.startswith("---")]
+    added = [bare(ln[1:]) for ln in diff.splitlines()
+             if ln.startswith("+") and not ln.startswith("+++")]
+    if (len(removed) == len(added) == 1 and removed[0].startswith("def")
+            and removed[0].replace("*,", "/,") == added[0]):
+        return KEYWORD_ONLY
+    for mod, before, after, reason in EQUIVALENT:
+        if mod == module and bare(before) in removed and bare(after) in added:
+            return reason
+    return None
+
+
+@contextlib.contextmanager
+def _terminate_cleanly() -> Iterator[None]:
+    """SIGTERM and SIGHUP raise, so that Cosmic Ray puts a mutated module back."""
+    def stop(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+    old = {s: signal.signal(s, stop) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+def _session_paths(module: str) -> tuple[Path, Path, Path]:
+    stem = module.removesuffix(".py").replace("/", ".")
+    return (SESSIONS / f"{stem}.sqlite", SESSIONS / f"{stem}.json",
+            SESSIONS / f"{stem}.backup")
+
+
+def _restore_backup(module: str) -> None:
+    """Put back a module left mutated by a run that was killed outright."""
+    _, _, backup = _session_paths(module)
+    if backup.exists():
+        (ROOT / module).write_bytes(backup.read_bytes())
+        backup.unlink()
+        print(f"{module}: restored from {backup} (a previous run was killed mid-mutant)")
+
+
+def run_module(module: str, sample: int, seed: int) -> None:
+    """Measure ``module``: init (or resume) its session, test the sampled mutants."""
+    from cosmic_ray.commands import init
+    from cosmic_ray.mutating import mutate_and_test
+    from cosmic_ray.testing import run_tests
+    from cosmic_ray.work_db import WorkDB, use_db
+    from cosmic_ray.work_item import TestOutcome, WorkerOutcome, WorkResult
+
+    SESSIONS.mkdir(parents=True, exist_ok=True)
+    db_path, meta_path, backup = _session_paths(module)
+    _restore_backup(module)
+    source = ROOT / module
+    digest = hashlib.sha256(source.read_bytes()).hexdigest()
+    tests = tests_of(module)
+    if not tests:
+        print(f"{module}: no test file concerns it; skipped")
+        return
+    meta = {"source": digest, "sample": sample, "seed": seed}
+    old_meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    fresh = {k: old_meta.get(k) for k in meta} != meta or not db_path.exists()
+    command = test_command(tests)
+    tests_digest = hashlib.sha256(b"".join(
+        (ROOT / t.partition("::")[0]).read_bytes() for t in tests) + command.encode()).hexdigest()
+    if old_meta.get("source") == digest and old_meta.get("tests_digest") == tests_digest:
+        baseline = float(old_meta["baseline_s"])  # passed on this very code and these tests
+    else:
+        start = time.monotonic()
+        outcome, output = run_tests(command, 1800)
+        baseline = time.monotonic() - start
+        if outcome != TestOutcome.SURVIVED:
+            sys.exit(f"{module}: its tests fail on the unmutated code; fix them first:\n"
+                     f"{command}\n{output[-2000:]}")
+    timeout = max(60.0, 2 * baseline)  # a mutant that loops forever is killed by it
+    if fresh:
+        db_path.unlink(missing_ok=True)
+    with use_db(str(db_path), WorkDB.Mode.create) as db:
+        if fresh:
+            init([source.relative_to(ROOT)], db, {})
+            spans = annotation_spans(source)
+            everything = sorted(db.work_items, key=lambda w: (
+                w.mutations[0].operator_name, w.mutations[0].occurrence))
+            notes = [w for w in everything if _in_annotation(
+                spans, w.mutations[0].start_pos, w.mutations[0].end_pos)]
+            db.set_multiple_results([w.job_id for w in notes], WorkResult(
+                worker_outcome=WorkerOutcome.SKIPPED, output=IN_ANNOTATION))
+            noted = {w.job_id for w in notes}
+            items = [w for w in everything if w.job_id not in noted]
+            random.Random(f"{module}:{seed}").shuffle(items)
+            code = source.read_text(encoding="utf-8")
+            chosen: set[str] = set()
+            for item in items:  # the first ``sample`` mutants, in a seeded order, that compile
+                if len(chosen) == sample:
+                    break
+                if _compiles(code, item.mutations[0]):
+                    chosen.add(item.job_id)
+                else:
+                    db.set_result(item.job_id, WorkResult(
+                        worker_outcome=WorkerOutcome.SKIPPED, output=NOT_PYTHON))
+            judged = chosen | {job for job, r in db.results if r.output == NOT_PYTHON}
+            db.set_multiple_results([w.job_id for w in items if w.job_id not in judged],
+                                    WorkResult(worker_outcome=WorkerOutcome.SKIPPED))
+        done = {job: result for job, result in db.results}
+        ordered = sorted(db.work_items, key=lambda w: (
+            w.mutations[0].operator_name, w.mutations[0].occurrence))
+        todo = [w for w in ordered if w.job_id not in done
+                or (done[w.job_id].worker_outcome == WorkerOutcome.NORMAL
+                    and done[w.job_id].test_outcome == TestOutcome.SURVIVED
+                    and not _equivalence(module, done[w.job_id].diff or ""))]
+        meta_path.write_text(json.dumps({**meta, "tests": list(tests),
+                                         "tests_digest": tests_digest, "baseline_s": baseline}))
+        print(f"{module}: {len(todo)} mutants to test against {len(tests)} test files "
+              f"(baseline {baseline:.0f} s, timeout {timeout:.0f} s)", flush=True)
+        for n, item in enumerate(todo, 1):
+            backup.write_bytes(source.read_bytes())
+            t0 = time.monotonic()
+            try:
+                with _terminate_cleanly():
+                    result = mutate_and_test(item.mutations, command, timeout)
+            finally:  # Cosmic Ray has put the module back (a SIGKILL leaves the backup)
+                backup.unlink()
+            db.set_result(item.job_id, result)
+            spec = item.mutations[0]
+            print(f"  [{n}/{len(todo)}] {spec.operator_name}#{spec.occurrence} line "
+                  f"{spec.start_pos[0]}: {result.test_outcome} "
+                  f"({time.monotonic() - t0:.0f} s)", flush=True)
+
+
+def summarise(module: str) -> tuple[Row, list[tuple[str, str]], list[tuple[str, str]]] | None:
+    """The row of ``module`` from its session, its survivors' and its equivalents' diffs."""
+    from cosmic_ray.work_db import WorkDB, use_db
+    from cosmic_ray.work_item import TestOutcome, WorkerOutcome
+
+    db_path, meta_path, _ = _session_paths(module)
+    if not db_path.exists() or not meta_path.exists():
+        return None
+    tests = json.loads(meta_path.read_text())["tests"]
+    counts = dict.fromkeys(("killed", "survived", "equivalent", "not_python", "incompetent"), 0)
+    code = (ROOT / module).read_text(encoding="utf-8")
+    survivors, equivalents = [], []
+    with use_db(str(db_path), WorkDB.Mode.open) as db:
+        total = db.num_work_items
+        results = dict(db.results)
+        sampled = sum(1 for r in results.values() if r.worker_outcome != WorkerOutcome.SKIPPED)
+        in_annotations = sum(1 for r in results.values() if r.output == IN_ANNOTATION)
+        specs = {w.job_id: w.mutations[0] for w in db.work_items}
+        for job, result in results.items():
+            if result.worker_outcome in (WorkerOutcome.SKIPPED, WorkerOutcome.NO_TEST):
+                continue
+            if result.worker_outcome != WorkerOutcome.NORMAL:
+                counts["incompetent"] += 1
+            elif not _compiles(code, specs[job]):
+                counts["not_python"] += 1
+            elif result.test_outcome == TestOutcome.SURVIVED:
+                diff = result.diff or ""
+                reason = _equivalence(module, diff)
+                if reason:
+                    counts["equivalent"] += 1
+                    equivalents.append((diff, reason))
+                else:
+                    counts["survived"] += 1
+                    survivors.append((diff, ""))
+            else:
+                counts["killed"] += 1
+    return (Row(module, " ".join(Path(t).name for t in tests), total, in_annotations,
+                sampled, **counts),
+            survivors, equivalents)
+
+
+def annotation_spans(path: Path) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """Where ``path`` writes type annotations: a mutant there alters no behaviour when the
+    module defers annotations (``from __future__ import annotations``), so it is not sampled."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    deferred = any(isinstance(n, ast.ImportFrom) and n.module == "__future__"
+                   and any(a.name == "annotations" for a in n.names) for n in tree.body)
+    if not deferred:
+        return []
+    notes: list[ast.expr] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.arg) and node.annotation is not None:
+            notes.append(node.annotation)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.returns:
+            notes.append(node.returns)
+        elif isinstance(node, ast.AnnAssign):
+            notes.append(node.annotation)
+    return [((n.lineno, n.col_offset), (n.end_lineno or n.lineno, n.end_col_offset or 0))
+            for n in notes]
+
+
+def _compiles(code: str, spec: object) -> bool:
+    """Whether the mutant ``spec`` of ``code`` is valid Python (Cosmic Ray also rewrites the
+    bare ``*`` of keyword-only parameters, which no test needs to notice)."""
+    from cosmic_ray.mutating import mutate_code
+    from cosmic_ray.plugins import get_operator
+
+    operator = get_operator(spec.operator_name)(**spec.operator_args)  # type: ignore[attr-defined]
+    mutated = mutate_code(code, operator, spec.occurrence)  # type: ignore[attr-defined]
+    if mutated is None:
+        return False
+    try:
+        with warnings.catch_warnings():  # e.g. "is not" with a literal: valid, if odd
+            warnings.simplefilter("ignore", SyntaxWarning)
+            compile(mutated, "<mutant>", "exec")
+    except SyntaxError:
+        return False
+    return True
+
+
+def _in_annotation(spans: list[tuple[tuple[int, int], tuple[int, int]]],
+                   start: tuple[int, int], end: tuple[int, int]) -> bool:
+    return any(a <= tuple(start) and tuple(end) <= b for a, b in spans)
+
+
+def _changed_lines(diff: str) -> str:
+    lines = [ln for ln in diff.splitlines() if ln[:1] in "-+" and ln[:3] not in ("---", "+++")]
+    return " / ".join(f"`{ln[0]} {ln[1:].strip()}`" for ln in lines)
+
+
+def write_summary() -> None:
+    """Rewrite the CSV and the generated part of docs/mutation.md from every session (a module
+    without a session keeps its committed row)."""
+    from ibt.files import atomic_write_text
+
+    fields = ("module", "tests", "mutants", "in_annotations", "sampled", "killed", "survived",
+              "equivalent", "not_python", "incompetent", "score_pct")
+    old: dict[str, dict[str, str]] = {}
+    if SUMMARY.exists():
+        with SUMMARY.open(newline="") as f:
+            old = {r["module"]: r for r in csv.DictReader(f)}
+    rows, survivors, equivalents = [], [], []
+    for module in core_modules():
+        got = summarise(module)
+        if got is None:
+            rows.append(old.get(module, {"module": module, "tests": "not measured"}))
+            continue
+        row, surv, equiv = got
+        rows.append({**{f: getattr(row, f) for f in fields[:-1]}, "score_pct": row.score})
+        survivors += [(module, d) for d, _ in surv]
+        equivalents += [(module, d, r) for d, r in equiv]
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=fields, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows({f: r.get(f, "") for f in fields} for r in rows)
+    atomic_write_text(SUMMARY, out.getvalue())
+    table = ["| module | mutants | in annotations | sampled | killed | survived | equivalent "
+             "| score |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if r.get("sampled"):
+            table.append(f"| `{r['module']}` | {r['mutants']} | {r['in_annotations']} "
+                         f"| {r['sampled']} | {r['killed']} | {r['survived']} "
+                         f"| {r['equivalent']} | {r['score_pct']} % |")
+    unmeasured = [f"`{r['module']}`" for r in rows if not r.get("sampled")]
+    text = ["", *table, ""]
+    if unmeasured:
+        text += [f"Not measured yet: {', '.join(unmeasured)}.", ""]
+    text += ["Survivors (each a change no mapped test notices):", ""]
+    text += [f"- `{m}`: {_changed_lines(d)}" for m, d in survivors] or ["- none"]
+    text += ["", "Equivalent mutants (excluded from the score):", ""]
+    text += [f"- `{m}`: {_changed_lines(d)}: {r}" for m, d, r in equivalents] or ["- none"]
+    doc = DOC.read_text(encoding="utf-8")
+    head, _, rest = doc.partition(BEGIN)
+    _, _, tail = rest.partition(END)
+    atomic_write_text(DOC, head + BEGIN + "\n".join(text) + "\n" + END + tail)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tests.mutation", description=__doc__)
+    parser.add_argument("modules", nargs="*", help="core modules (default: all)")
+    parser.add_argument("--sample", type=int, default=DEFAULT_SAMPLE,
+                        help="mutants sampled per module (a fixed-seed sample)")
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
+    parser.add_argument("--summary-only", action="store_true",
+                        help="rewrite the summary from the sessions, testing nothing")
+    args = parser.parse_args(argv)
+    scope = core_modules()
+    unknown = [m for m in args.modules if m not in scope]
+    if unknown:
+        print(f"not a core module: {', '.join(unknown)}; pick from: {' '.join(scope)}",
+              file=sys.stderr)
+        return 2
+    if args.sample < 1:
+        print("--sample must be at least 1", file=sys.stderr)
+        return 2
+    os.chdir(ROOT)  # Cosmic Ray mutates and tests relative to the working directory
+    start = time.monotonic()
+    if not args.summary_only:
+        for module in args.modules or scope:
+            run_module(module, args.sample, args.seed)
+            write_summary()
+    write_summary()
+    print(f"mutation testing: {time.monotonic() - start:.0f} s; summary in "
+          f"{SUMMARY.relative_to(ROOT)} and {DOC.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
