@@ -137,6 +137,27 @@ class _Row:
     deciding: bool
 
 
+COMMAND_WIDTH = 32  #: characters a line of a drawn command holds before it wraps
+
+
+def command_lines(text: str, width: int = COMMAND_WIDTH) -> list[str]:
+    """A command's label one dimension a line (``main_engine := ..., side_engine := ...``), a
+    long linear command wrapped before a ``+`` or ``-`` term so boxes stay narrow."""
+    import re
+
+    lines: list[str] = []
+    for part in text.split(", "):
+        line = ""
+        for term in re.split(r" (?=[+-] )", part):
+            if line and len(line) + 1 + len(term) > width:
+                lines.append(line)
+                line = "  " + term
+            else:
+                line = f"{line} {term}" if line else term
+        lines.append(line)
+    return lines
+
+
 def plain_label(text: str) -> str:
     """``text`` as a graphviz label shown literally: never an HTML label (a name such as
     ``<<TABLE>...<IMG SRC="f"/>...>>`` would make ``dot`` read a file), no ``\\N``-style
@@ -239,7 +260,7 @@ class _Drawer:
         status = self._status(index)
         text = self._text(node)
         if self.bt.commands is not None:  # a command's values one per line: narrower boxes
-            text = text.replace(", ", "\n")
+            text = "\n".join(command_lines(text))
         attrs = {"label": plain_label(text), "shape": "box",
                  "style": "filled,rounded",
                  "fillcolor": ACTION_FILL}
@@ -274,7 +295,7 @@ class _Drawer:
             glyph, fill = header
             shown = html.escape(glyph)
             if self.bt.commands is not None:  # a command's values one per line: narrower boxes
-                shown = shown.replace(", ", "<BR/>")
+                shown = "<BR/>".join(html.escape(line) for line in command_lines(glyph))
             out.append(f'<TR><TD COLSPAN="{ncols}" BGCOLOR="{self._cell_fill(status, fill)}">'
                        f'<FONT POINT-SIZE="{GLYPH_PT}">{shown}</FONT></TD></TR>')
         for k, text in enumerate(intro):
@@ -305,7 +326,8 @@ class _Drawer:
                 if self.trace:
                     mark = " " if row.status is None else ("✓" if row.status else "✗")
                     cells.append(f'<TD {fixed} BGCOLOR="{fill}">{mark}</TD>')
-                text = html.escape(row.text, quote=False)
+                text = '<BR ALIGN="LEFT"/>'.join(  # a long sum of terms wraps as commands do
+                    html.escape(line, quote=False) for line in command_lines(row.text))
                 if self.trace and row.status is None:
                     text = f'<FONT COLOR="{IDLE}">{text}</FONT>'
                 cells.append(f'<TD PORT="{port}" ALIGN="LEFT" BGCOLOR="{fill}">{text}</TD>')
@@ -403,7 +425,7 @@ def _drawer(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
             stagger: int = 1, title: str | None = None, legend: bool = True) -> _Drawer:
     drawer = _Drawer(bt, highlight, deciding, precision, collapse, stagger)
     drawer.emit(0)
-    lines = [html.escape(xml_safe(title))] if title else []
+    lines = [html.escape(xml_safe(part)) for part in title.split("\n")] if title else []
     if highlight is not None and legend:
         lines.append(f'<FONT POINT-SIZE="{FONT_PT}">{TRACE_LEGEND}</FONT>')
     if lines:

@@ -111,7 +111,7 @@ def fit_graphviz(bt: BehaviorTree, highlight: dict[int, bool] | None = None,
     for collapsed, rows in tries:
         note = title
         if collapsed:
-            note = " ".join(filter(None, [title, "(one node per action" + (
+            note = "\n".join(filter(None, [title, "(one node per action" + (
                 f"; every node: {full_name})" if full_name else ")")]))
         graph = to_graphviz(bt, highlight, precision, deciding=deciding, collapse=collapsed,
                             stagger=rows, title=note, legend=legend)

@@ -330,7 +330,7 @@ def report_text(rec: Recommendation, out: Path) -> str:
 
 def fenced(text: str, info: str = "") -> list[str]:
     """``text`` as a Markdown code block whose fence is longer than any run of backticks in it
-    (a name holding "```" cannot end the block early)."""
+    (a name holding three backticks cannot end the block early)."""
     import re
 
     longest = max((len(run) for run in re.findall(r"`+", text)), default=0)

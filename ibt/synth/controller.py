@@ -174,12 +174,9 @@ def check_states(tree: ControllerArrays | ObliqueArrays, task: Task, visited: np
 
 
 def rules_text(bt: BehaviorTree) -> list[str]:
-    """A controller BT as if/elif/else lines, one per rule (nested where the BT nests)::
-
-        if angular_velocity <= -2.7: torque := -2.96 + 6.66 * cos_theta ...
-        elif cos_theta <= -0.0607: torque := -1.63 - 1.03 * cos_theta ...
-        else: torque := -0.712 - 13.6 * sin_theta - 2.24 * angular_velocity
-    """
+    """A controller BT as if/elif/else lines, one per rule, nested where the BT nests:
+    ``if angular_velocity <= -2.7: torque := -2.96 + 6.66 * cos_theta``, then ``elif ...``
+    lines, then ``else: ...`` for the default rule."""
     def block(children: tuple[Node, ...], indent: str) -> list[str]:
         lines: list[str] = []
         for k, child in enumerate(children):

@@ -109,7 +109,7 @@ def write_headline(cfg: Config, results: Path = DATA_DIR / "results") -> pd.Data
                                    f"row in {row.source} {row.bt_nodes}; rerun its notebook")
             atomic_write_text(folder / "bt.json", bt.to_json())
             atomic_write_text(folder / "bt.xml", to_btcpp_xml(bt))
-            title = (f"{row.task}, {row.method} ({str(row.expert).upper()}): "
+            title = (f"{row.task}, {row.method} ({str(row.expert).upper()}):\n"
                      f"{bt.node_count} nodes")
             draw_bt(bt, folder / "bt", title=title)
             write_gif(task, bt, row, folder / "episode.gif", 20 if smoke else None)
