@@ -67,14 +67,21 @@ def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):
     agent = sb3_agent(task, "ppo", agents / "cart.zip")
     rec = recommend(agent, budget=parse_budget("smoke"), leaf_limits=(8, 4), restarts=1,
                     cache_dir=tmp_path / "cache", progress=False, full=True)
-    # every step (full): distillation smallest rung first, axis-aligned then relational at the
-    # same limit; then the relational search (it covers axis-aligned trees); then refinement
+    # every step (full): distillation smallest rung first, axis-aligned, relational, then
+    # oblique at the same limit; then the relational search (it covers axis-aligned trees);
+    # then refinement
     assert [(c.leaf_limit, c.label) for c in rec.candidates] == [
-        (4, "distilled"), (4, "distilled, relational"), (8, "distilled"),
-        (8, "distilled, relational"), (4, "searched, relational"), (8, "searched, relational"),
-        (4, "refined"), (4, "refined, relational"), (8, "refined"), (8, "refined, relational")]
+        (4, "distilled"), (4, "distilled, relational"), (4, "distilled, oblique"),
+        (8, "distilled"), (8, "distilled, relational"), (8, "distilled, oblique"),
+        (4, "searched, relational"), (8, "searched, relational"),
+        (4, "refined"), (4, "refined, relational"), (4, "refined, oblique"),
+        (8, "refined"), (8, "refined, relational"), (8, "refined, oblique")]
     assert all(c.leaves <= c.leaf_limit for c in rec.candidates)
+    from ibt.engine.synthesis import builds_own_bt
+
     for c in rec.candidates:  # every synthesiser's BT decides as its tree
+        if builds_own_bt(c.tree):  # an oblique tree's BT is checked as it is laid out
+            continue
         for bt in c.bts.values():
             verify(bt, c.tree, task)
     # the confirmation numbers are those of fresh episodes, not the choice episodes

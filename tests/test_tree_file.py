@@ -90,7 +90,7 @@ def test_a_bt_file_in_capitals_is_a_bt(tmp_path, capsys):
 
 def test_stale_temporary_files_are_swept_and_fresh_ones_kept(tmp_path):
     out = tmp_path / "bt.json"
-    stale, fresh = tmp_path / ".bt.json.ab12cd.json", tmp_path / ".bt.json.ef34gh.json"
+    stale, fresh = tmp_path / ".bt.json.ab12cd34.json", tmp_path / ".bt.json.ef34gh.json"
     other = tmp_path / ".other.json.ab12cd.json"
     for path in (stale, fresh, other):
         path.write_text("partial")

@@ -140,13 +140,14 @@ class _Row:
 COMMAND_WIDTH = 32  #: characters a line of a drawn command holds before it wraps
 
 
-def command_lines(text: str, width: int = COMMAND_WIDTH) -> list[str]:
-    """A command's label one dimension a line (``main_engine := ..., side_engine := ...``), a
-    long linear command wrapped before a ``+`` or ``-`` term so boxes stay narrow."""
+def command_lines(text: str, width: int = COMMAND_WIDTH, dimensions: bool = True) -> list[str]:
+    """A command's label one dimension a line (``main_engine := ..., side_engine := ...``;
+    ``dimensions=False``: a condition's label, whose commas are its own), a long sum wrapped
+    before a ``+`` or ``-`` term so boxes stay narrow."""
     import re
 
     lines: list[str] = []
-    for part in text.split(", "):
+    for part in text.split(", ") if dimensions else [text]:
         line = ""
         for term in re.split(r" (?=[+-] )", part):
             if line and len(line) + 1 + len(term) > width:
@@ -327,7 +328,8 @@ class _Drawer:
                     mark = " " if row.status is None else ("✓" if row.status else "✗")
                     cells.append(f'<TD {fixed} BGCOLOR="{fill}">{mark}</TD>')
                 text = '<BR ALIGN="LEFT"/>'.join(  # a long sum of terms wraps as commands do
-                    html.escape(line, quote=False) for line in command_lines(row.text))
+                    html.escape(line, quote=False)
+                    for line in command_lines(row.text, dimensions=False))
                 if self.trace and row.status is None:
                     text = f'<FONT COLOR="{IDLE}">{text}</FONT>'
                 cells.append(f'<TD PORT="{port}" ALIGN="LEFT" BGCOLOR="{fill}">{text}</TD>')
