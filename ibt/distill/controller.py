@@ -27,7 +27,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -306,8 +306,12 @@ def fit_model_tree(x: np.ndarray, y: np.ndarray, max_leaves: int, *, max_terms: 
 # ------------------------------------------------------------------------ the interactive loop
 @dataclass(frozen=True)
 class ControllerConfig:
-    """Everything that determines a controller distillation (with the agent and seed)."""
+    """Everything that determines a controller distillation (with the agent and seed); the
+    oblique learner's settings are the same with tests of at least one feature
+    (:class:`ibt.distill.oblique.ObliqueConfig`)."""
 
+    learner: ClassVar[str] = LEARNER  # named in the cache key
+    min_terms: ClassVar[int] = 0  # a leaf's command may be a constant
     method: str = "dagger"
     n_iterations: int = 10
     labels_per_iteration: int = 4000
@@ -321,8 +325,9 @@ class ControllerConfig:
         check_loop_settings(self.method, self.n_iterations, self.labels_per_iteration)
         if self.max_leaves < 1:
             raise ValueError(f"max_leaves must be at least 1, got {self.max_leaves}")
-        if not 0 <= self.max_terms <= MAX_TERMS:
-            raise ValueError(f"max_terms must be 0 to {MAX_TERMS}, got {self.max_terms}")
+        if not self.min_terms <= self.max_terms <= MAX_TERMS:
+            raise ValueError(f"max_terms must be {self.min_terms} to {MAX_TERMS}, got "
+                             f"{self.max_terms}")
 
     @property
     def beta(self) -> Any:
@@ -333,7 +338,7 @@ class ControllerConfig:
         return METHODS[self.method].weighted
 
     def as_params(self) -> dict[str, Any]:
-        return {"learner": LEARNER, **asdict(self)}
+        return {"learner": self.learner, **asdict(self)}
 
 
 @dataclass(frozen=True)

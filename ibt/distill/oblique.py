@@ -17,14 +17,14 @@ every threshold and weight (:mod:`ibt.refine.controller`).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ibt.bt.linear import MAX_TERMS
-from ibt.distill.controller import split_value, widen
-from ibt.distill.loop import METHODS, Distillation, check_loop_settings, interactive_loop, mix
+from ibt.distill.controller import ControllerConfig, split_value, widen
+from ibt.distill.loop import Distillation, interactive_loop, mix
 from ibt.experts.expert import Expert
 from ibt.tasks.task import Task
 
@@ -215,34 +215,12 @@ def fit_oblique_tree(x: np.ndarray, y: np.ndarray, n_classes: int, max_leaves: i
 
 
 @dataclass(frozen=True)
-class ObliqueConfig:
-    """Everything that determines an oblique distillation (with the agent and seed)."""
+class ObliqueConfig(ControllerConfig):
+    """Everything that determines an oblique distillation (with the agent and seed): the
+    controller's settings, its tests of at least one feature."""
 
-    method: str = "dagger"
-    n_iterations: int = 10
-    labels_per_iteration: int = 4000
-    selection_episodes: int = 20
-    max_leaves: int = 4
-    max_terms: int = MAX_TERMS
-    collect_envs: int = 2
-    eval_envs: int = 20
-
-    def __post_init__(self) -> None:
-        check_loop_settings(self.method, self.n_iterations, self.labels_per_iteration)
-        if self.max_leaves < 1 or not 1 <= self.max_terms <= MAX_TERMS:
-            raise ValueError(f"max_leaves >= 1 and 1 <= max_terms <= {MAX_TERMS}, got "
-                             f"{self.max_leaves} and {self.max_terms}")
-
-    @property
-    def beta(self) -> Any:
-        return METHODS[self.method].schedule
-
-    @property
-    def weighted(self) -> bool:
-        return METHODS[self.method].weighted
-
-    def as_params(self) -> dict[str, Any]:
-        return {"learner": LEARNER, **asdict(self)}
+    learner: ClassVar[str] = LEARNER
+    min_terms: ClassVar[int] = 1
 
 
 @dataclass(frozen=True)
