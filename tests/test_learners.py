@@ -3,6 +3,7 @@ from outside the engine tried by the ladder like the built-in ones."""
 
 from __future__ import annotations
 
+import json
 from types import SimpleNamespace
 from typing import Any
 
@@ -12,9 +13,11 @@ from ibt.engine import learners
 from ibt.engine.learners import (
     BOX,
     DISCRETE,
+    LEARNER_DISTIL,
     LEARNERS,
     Learner,
     get_learner,
+    learner_of_tree,
     learners_for,
     loop_fit,
     rank,
@@ -80,22 +83,21 @@ def _stump_refine(cfg: Any, agent: Any, tree: Any, seed: int, scale: float,
     return tree  # a toy: its tree as distilled
 
 
-STUMP = Learner("stump", DISCRETE, "stump-distill", "distillation", _stump_settings,
-                loop_fit(Stumps), lambda cfg, agent, run, seed: run.best_tree, _stump_refine)
+STUMP = Learner("stump", DISCRETE, LEARNER_DISTIL, "distillation", _stump_settings,
+                loop_fit(Stumps), lambda cfg, agent, run, seed: run.best_tree, _stump_refine,
+                sources=("distill/loop.py",))
 
 
 def test_a_learner_registered_outside_the_engine_is_tried_by_the_ladder(agents, tmp_path,
                                                                        monkeypatch):
-    """The recipe of docs/ARCHITECTURE.md: a learner (here in this test), its registry entry and
-    its cache kind; the ladder then distils and refines with it at every rung, after the
-    built-in ones, and its distillation is cached under its own kind."""
+    """The recipe of docs/ARCHITECTURE.md: a learner (here in this test) and its registry
+    entry, nothing else; the ladder then distils and refines with it at every rung, after the
+    built-in ones, and its distillation is cached under the shared kind, keyed on its name."""
     import ibt
-    from ibt.cache import store
     from ibt.engine.agent import sb3_agent
     from ibt.engine.ladder import Settings, run_ladder
     from ibt.tasks.catalogue import resolve_task
 
-    monkeypatch.setitem(store.CODE_VERSIONS, "stump-distill", 1)
     monkeypatch.setattr(learners, "LEARNERS", dict(LEARNERS))  # the registry as it was, after
     learners.register_learner(STUMP)
     agent = sb3_agent(resolve_task("ToyLine-v0"), "ppo", agents / "line.zip")
@@ -108,4 +110,42 @@ def test_a_learner_registered_outside_the_engine_is_tried_by_the_ladder(agents, 
     stumps = [c for c in ladder.candidates if c.learner == "stump"]
     assert [c.stage for c in stumps] == ["distilled", "refined"]
     assert all(c.tree.get_depth() <= 2 for c in stumps) and stumps[0].label == "distilled"
-    assert len(list((tmp_path / "stump-distill").glob("*/manifest.json"))) == 1
+    manifests = list((tmp_path / LEARNER_DISTIL).glob("*/manifest.json"))
+    assert len(manifests) == 1
+    params = json.loads(manifests[0].read_text())["params"]
+    assert (params["learner"], params["learner_version"]) == ("stump", 1)
+
+
+def test_a_built_in_learner_of_the_shared_kind_is_guarded_by_its_sources(monkeypatch):
+    """The code guard records such a learner's version and sources, and names a change to
+    its sources without a bump."""
+    from ibt.cache import guard
+
+    monkeypatch.setattr(learners, "LEARNERS", dict(LEARNERS))
+    learners.register_learner(STUMP)
+    record = guard.current()
+    assert record["learner:stump"]["version"] == 1
+    assert not any(k.startswith("learner:") for k in record if k != "learner:stump")
+    changed = {**record, "learner:stump": {**record["learner:stump"], "sources": "0" * 64}}
+    assert guard.differences(changed) == [
+        "learner:stump: its sources changed but the learner's version (its entry's version=) "
+        "did not; bump it if the change can change a result, else record it with --write"]
+
+
+@pytest.mark.parametrize(("module", "cls", "learner"), [
+    ("ibt.distill.oblique", "ObliqueArrays", "oblique"),
+    ("ibt.distill.controller", "ControllerArrays", "controller"),
+    ("ibt.refine.commands", "CommandArrays", "box")])
+def test_the_engine_finds_the_learner_of_a_tree_by_its_class(module, cls, learner):
+    from importlib import import_module
+
+    tree = object.__new__(getattr(import_module(module), cls))
+    entry = learner_of_tree(tree)
+    assert entry is not None and entry.name == learner and entry.measured_as_bt
+    assert (entry.lay_out is not None) == (learner != "box")  # box: the front's synthesisers
+
+
+def test_a_classifier_has_no_learner_of_its_own():
+    from sklearn.tree import DecisionTreeClassifier
+
+    assert learner_of_tree(DecisionTreeClassifier()) is None

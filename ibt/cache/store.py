@@ -90,6 +90,9 @@ CODE_VERSIONS: dict[str, int] = {
     # controller and oblique trees (linear commands, tests of up to four features)
     "controller-distil": 1,  # distilled: ibt.distill.controller / ibt.distill.oblique
     "controller-refine": 1,  # refined: ibt.refine.controller.refine_controller
+    # learners without a kind of their own: keyed on the learner's name and version
+    "learner-distil": 1,  # ibt.engine.distil.distillation_of (ibt.engine.learners.LEARNER_DISTIL)
+    "learner-refine": 1,  # ibt.engine.learners.refinement_cached
 }
 READS_ENV = "IBT_CACHE_READS"
 #: written into a cache root that ibt creates (or finds empty) at its first entry: the proof

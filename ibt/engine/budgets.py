@@ -65,25 +65,6 @@ def box_config(cfg: Config, task: Task, method: str, leaves: int | None) -> Any:
     return BoxDistillConfig.for_task(task, **overrides)
 
 
-def controller_config(cfg: Config, task: Task, leaves: int | None) -> Any:
-    """A controller tree's (``Box`` task) or oblique tree's (discrete task) distillation at a
-    leaf limit: the task's labels per iteration, at most 10 iterations (the loop's best tree
-    came by iteration 8 in the controllers study), shrunk under ``smoke``."""
-    from ibt.distill.controller import ControllerConfig
-    from ibt.distill.oblique import ObliqueConfig
-
-    kind = ControllerConfig if task.continuous else ObliqueConfig
-    overrides: dict[str, Any] = {
-        "n_iterations": min(10, task.budget.max_iterations or cfg.n_iterations),
-        "labels_per_iteration": task.budget.labels_per_iteration,
-        "selection_episodes": min(BOX_SELECTION_EPISODES, cfg.selection_episodes)}
-    if leaves is not None:
-        overrides["max_leaves"] = leaves
-    if cfg.profile == "smoke":
-        overrides.update(n_iterations=2, labels_per_iteration=300, eval_envs=3)
-    return kind(**overrides)
-
-
 def learner_params() -> dict[str, Any]:
     """The relational learner's settings, part of every ``distill-rel`` key."""
     from ibt.distill.relational import RelationalSettings

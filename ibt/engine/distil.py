@@ -33,7 +33,7 @@ def distill_key(cfg: Config, agent: Agent, seed: int, learner: str = "axis",
     entry = get_learner(learner)
     config = entry.settings(cfg, agent, method, overrides)
     params = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
-              "config": config.as_params(), **entry.key_params(),
+              "config": config.as_params(), **entry.params(),
               "expert_sha256": agent.digest}  # as distillation_of keys it
     return entry.kind, params, config
 
@@ -53,7 +53,7 @@ def distillation_of(cfg: Config, agent: Agent, seed: int, learner: str, config: 
     :func:`distill_key` keys it."""
     entry = get_learner(learner)
     params = {"task": agent.task.key, "algo": agent.algo, "seed": seed,
-              "config": config.as_params(), **entry.key_params(),
+              "config": config.as_params(), **entry.params(),
               "expert_sha256": agent.digest}
     return load_or_compute(entry.kind, params, lambda: entry.fit(cfg, agent, config, seed),
                            cache_dir=cfg.cache_dir, codec=entry.codec, refresh=cfg.refresh)

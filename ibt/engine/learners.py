@@ -2,25 +2,31 @@
 
 A learner is what the distillation stage (:mod:`ibt.engine.distil`) fits at a leaf limit:
 ``axis`` (scikit-learn's CART), ``relational`` (splits may test ``w1 * x_i + w2 * x_j``,
-:mod:`ibt.distill.relational`) and ``box`` (a regression tree on a ``Box`` task, its leaves
-merged into named commands, :mod:`ibt.distill.continuous`). Each entry says which action
-space it accepts, its cache kind and payload codec, and how the engine builds its settings,
-runs its loop, reads the stage's tree from a cached run and refines that tree by return. The
-ladder (:mod:`ibt.engine.ladder`) tries, at each rung, every registered learner that accepts
-the agent's actions, in registry order (the simplest first; a tie in BT size goes to the
-earlier one); the studies and the pipeline name a learner by its entry's name.
+:mod:`ibt.distill.relational`), ``box`` (a regression tree on a ``Box`` task, its leaves
+merged into named commands, :mod:`ibt.distill.continuous`), ``oblique`` and ``controller``
+(:mod:`ibt.engine.controller_learners`). Each entry says which action space it accepts, its
+cache kind and payload codec, and how the engine builds its settings, runs its loop, reads the
+stage's tree from a cached run, refines that tree by return, lays out its BT where the
+registered synthesisers do not, and measures it. The ladder (:mod:`ibt.engine.ladder`) tries,
+at each rung, every registered learner that accepts the agent's actions, in registry order
+(the simplest first; a tie in BT size goes to the earlier one); the studies and the pipeline
+name a learner by its entry's name, and the engine finds the learner of a tree by its class
+(:func:`learner_of_tree`).
 
-Adding a learner is its module (the tree fit), one :func:`register_learner` call (one entry in
-the list at the bottom for a built-in one) and its cache kind (``CODE_VERSIONS`` with the
-modules that decide it in ``KIND_SOURCES``); see ``docs/ARCHITECTURE.md``, "Adding things".
-A learner registered from a user's environment module is seen in worker processes too, since
-a worker imports those modules before it runs a stage.
+Adding a learner is one module holding its tree fit and its :class:`Learner` entry, one line in
+:data:`BUILT_IN` (or a :func:`register_learner` call from a user's environment module) and its
+tests. A new learner is cached under the kinds :data:`LEARNER_DISTIL` and
+:data:`LEARNER_REFINE`, keyed on its name and ``version``; the code guard
+(:mod:`ibt.cache.guard`) records the ``sources`` of every built-in learner, so no cache module
+changes. A learner registered from a user's environment module is seen in worker processes too,
+since a worker imports those modules before it runs a stage.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from importlib import import_module
 from typing import Any
 
 from ibt.engine import budgets
@@ -29,6 +35,8 @@ from ibt.profiles import Config
 
 DISCRETE = "discrete"  #: a learner of trees whose leaves are action indices
 BOX = "box"  #: a learner of trees whose leaves are command vectors (``Box`` actions)
+LEARNER_DISTIL = "learner-distil"  #: the distillation kind of learners without a kind of their own
+LEARNER_REFINE = "learner-refine"  #: the refinement kind of learners without a kind of their own
 
 
 def _no_params() -> dict[str, Any]:
@@ -45,11 +53,19 @@ class Learner:
     seed)``: the distillation run, the cached payload (``codec``); ``tree(cfg, agent, run,
     seed)``: the stage's tree of a run; ``refine(cfg, agent, tree, seed, scale, episodes)``:
     that tree refined by return (``scale`` of the task's budget, or ``episodes``);
-    ``key_params()``: more key parameters (the learner's own settings)."""
+    ``key_params()``: more key parameters (the learner's own settings); ``lay_out(agent,
+    tree, seed)``: its tree's BTs by name (``{name: BehaviorTree}``, each verified), where the
+    registered synthesisers do not make them (None: they do); ``trees``: the qualified names
+    of the classes of its stage trees (how :func:`learner_of_tree` finds it); ``measured_as_bt``:
+    its trees are rolled out through their smallest BT (a tree that does not act as a
+    :class:`ibt.evaluate.policies.TreePolicy` would); ``version`` and ``sources``: its code
+    version in the keys of :data:`LEARNER_DISTIL` and :data:`LEARNER_REFINE` and the modules
+    (package-relative) that decide its results, which the code guard records."""
 
     name: str
     actions: str  # DISCRETE or BOX: the action space it accepts
-    kind: str  # its distillation's cache kind (ibt.cache.store.CODE_VERSIONS)
+    kind: str  # its distillation's cache kind: its own (ibt.cache.store.CODE_VERSIONS) or
+    #            LEARNER_DISTIL
     codec: str  # its run's payload codec (ibt.cache.payloads.CODECS)
     settings: Callable[[Config, Agent, str | None, dict[str, Any]], Any]
     fit: Callable[[Config, Agent, Any, int], Any]
@@ -60,6 +76,18 @@ class Learner:
     combines_features: bool = False  # a test may read several features (off with relational=False)
     searched: bool = False  # its trees seed the structure search (discrete actions)
     description: str = ""
+    lay_out: Callable[[Agent, Any, int], dict[str, Any]] | None = None
+    trees: tuple[str, ...] = ()
+    measured_as_bt: bool = False
+    version: int = 1
+    sources: tuple[str, ...] = ()
+
+    def params(self) -> dict[str, Any]:
+        """Its key parameters beside the run's: :meth:`key_params`, and under the shared
+        kind :data:`LEARNER_DISTIL` its name and version."""
+        shared = ({"learner": self.name, "learner_version": self.version}
+                  if self.kind == LEARNER_DISTIL else {})
+        return {**self.key_params(), **shared}
 
     def accepts(self, agent: Agent, combined: bool = True) -> bool:
         """Whether the ladder offers it ``agent`` (``combined``: learners whose tests combine
@@ -95,6 +123,25 @@ def learners_for(agent: Agent, combined: bool = True) -> tuple[str, ...]:
 def rank(name: str) -> int:
     """A learner's place in the registry: the simpler first (the pipeline's tie-break)."""
     return list(LEARNERS).index(name)
+
+
+def learner_of_tree(tree: Any) -> Learner | None:
+    """The registered learner whose stage trees are of ``tree``'s class (None: a classifier of
+    the ``axis`` or ``relational`` learners, whose trees every synthesiser takes)."""
+    cls = type(tree)
+    name = f"{cls.__module__}.{cls.__qualname__}"
+    return next((entry for entry in LEARNERS.values() if name in entry.trees), None)
+
+
+def refinement_cached(cfg: Config, learner: Learner, params: dict[str, Any],
+                      compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """A learner's refinement (a JSON document) cached under :data:`LEARNER_REFINE`, keyed on
+    ``params`` (task, seed, source tree, settings) with the learner's name and version."""
+    from ibt.cache.store import load_or_compute
+
+    return load_or_compute(LEARNER_REFINE, {"learner": learner.name,
+                                            "learner_version": learner.version, **params},
+                           compute, cache_dir=cfg.cache_dir, codec="json", refresh=cfg.refresh)
 
 
 # --- the built-in learners' adapters -----------------------------------------------------------
@@ -204,48 +251,6 @@ def _box_refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float,
     return command_refinement(cfg, agent, tree, seed, config).best
 
 
-def _controller_settings(cfg: Config, agent: Agent, method: str | None,
-                         overrides: dict[str, Any]) -> Any:
-    """A controller (or oblique) tree's loop settings at a leaf limit (its one override)."""
-    overrides = dict(overrides)
-    leaves = overrides.pop("max_leaf_nodes", None)
-    if overrides:
-        raise TypeError(f"a controller distillation takes max_leaf_nodes only, not "
-                        f"{sorted(overrides)}")
-    config = budgets.controller_config(cfg, agent.task, leaves)
-    return replace(config, method=method) if method else config
-
-
-def _controller_fit(cfg: Config, agent: Agent, config: Any, seed: int) -> dict[str, Any]:
-    """The loop with a model tree (Box) or an oblique tree (discrete): ``tree`` (its
-    document), ``iterations``, ``best_index``, ``wall_seconds``."""
-    from ibt.distill.controller import distill_controller
-    from ibt.distill.oblique import distill_oblique
-
-    learn = distill_controller if agent.continuous else distill_oblique
-    run = learn(agent.task, agent.load(), config, seed, progress=cfg.progress)
-    return {"tree": run.best_tree.to_doc(), "iterations": run.iterations,
-            "best_index": run.best_index, "wall_seconds": run.wall_seconds}
-
-
-def _controller_tree(cfg: Config, agent: Agent, run: dict[str, Any], seed: int) -> Any:
-    from ibt.refine.controller import tree_from_doc
-
-    return tree_from_doc(run["tree"])
-
-
-def _controller_refine(cfg: Config, agent: Agent, tree: Any, seed: int, scale: float,
-                       episodes: int | None) -> Any:
-    """Thresholds, test weights and commands refined by return, constants rounded to the
-    fewest digits that keep the return (:func:`ibt.engine.refine.controller_refinement`)."""
-    from ibt.engine.refine import controller_refinement
-    from ibt.refine.controller import tree_from_doc
-
-    config = budgets.scaled_refine_config(cfg, agent.task, scale, episodes, commands=True)
-    record = controller_refinement(cfg, agent.task, tree, seed, config, tolerance=0.0)
-    return tree_from_doc(record["candidates"][record["best_index"]])
-
-
 for _entry in (
     Learner("axis", DISCRETE, "distill", "distillation", _loop_settings(None), _loop_fit,
             _best_tree, _refine_classifier("imitation-bt"), searched=True,
@@ -257,14 +262,13 @@ for _entry in (
             description="splits may test w1 * x_i + w2 * x_j where they beat every "
                         "axis-aligned one"),
     Learner("box", BOX, "box-distill", "json", _box_settings, _box_fit, _box_tree,
-            _box_refine,
+            _box_refine, trees=("ibt.refine.commands.CommandArrays",), measured_as_bt=True,
             description="a regression tree whose leaves are merged into named commands"),
-    Learner("oblique", DISCRETE, "controller-distil", "json", _controller_settings,
-            _controller_fit, _controller_tree, _controller_refine, min_features=2,
-            combines_features=True,
-            description="tests of up to four features, w1 * x1 + ... + wk * xk > t"),
-    Learner("controller", BOX, "controller-distil", "json", _controller_settings,
-            _controller_fit, _controller_tree, _controller_refine, combines_features=True,
-            description="tests of up to four features and commands linear in up to four"),
 ):
     register_learner(_entry)
+
+#: the built-in learners defined in modules of their own, registered after the ones above
+BUILT_IN = ("ibt.engine.controller_learners",)
+for _module in BUILT_IN:
+    for _entry in import_module(_module).LEARNERS:
+        register_learner(_entry)

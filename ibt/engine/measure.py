@@ -90,12 +90,12 @@ def measure(cfg: Config, agent: Agent, tree: Any, bts: dict[str, Any], seeds: li
 def policy(agent: Agent, tree: Any, bts: dict[str, Any]
            ) -> tuple[dict[str, Any], Callable[[], Any]]:
     """How a tree is measured: its identity in the cache, and its policy's maker."""
-    from ibt.engine.synthesis import builds_own_bt
+    from ibt.engine.learners import learner_of_tree
     from ibt.evaluate.policies import TreePolicy
-    from ibt.refine.commands import CommandArrays
 
     task = agent.task
-    if isinstance(tree, CommandArrays) or builds_own_bt(tree):  # measured as their BT
+    learner = learner_of_tree(tree)
+    if learner is not None and learner.measured_as_bt:
         bt = bts[smallest_bt(bts)]
         if task.continuous:
             from ibt.synth.commands import CommandBTPolicy

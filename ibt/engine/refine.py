@@ -34,23 +34,6 @@ def command_refinement(cfg: Config, agent: Agent, arrays: Any, seed: int, config
     return CommandRefinement.from_doc(doc)
 
 
-def controller_refinement(cfg: Config, task: Task, tree: Any, seed: int, config: Any,
-                          tolerance: float) -> dict[str, Any]:
-    """A controller or oblique tree refined by return (kind ``controller-refine``): the record
-    of :func:`ibt.refine.controller.refine_controller` as a document."""
-    from ibt.refine.controller import refine_controller
-
-    params = {"task": task.key, "source": tree.digest(), "seed": seed,
-              "config": config.as_params(), "tolerance": tolerance}
-
-    def compute() -> dict[str, Any]:
-        return refine_controller(tree, task, config, seed, tolerance=tolerance,
-                                 progress=cfg.progress).to_doc()
-
-    return load_or_compute("controller-refine", params, compute, cache_dir=cfg.cache_dir,
-                           refresh=cfg.refresh)
-
-
 def refinement_cached(cfg: Config, task: Task, algo: str, seed: int, source_method: str,
                       tree: Any, config: Any) -> Any:
     """``tree`` refined by return (:func:`ibt.refine.by_return.refine`, or

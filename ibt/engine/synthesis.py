@@ -17,8 +17,6 @@ import time
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
 from ibt.cache.store import load_or_compute
 from ibt.engine.agent import Agent
 from ibt.engine.keys import tree_key
@@ -118,29 +116,17 @@ def synthesised(cfg: Config, task: Task, algo: str, method: str, seed: int, sour
                            codec="synthesis", refresh=cfg.refresh)
 
 
-def builds_own_bt(tree: Any) -> bool:
-    """A controller or oblique tree: one construction lays out its BT (one rule per leaf,
-    :mod:`ibt.synth.controller`), not the registered synthesisers."""
-    from ibt.distill.controller import ControllerArrays
-    from ibt.distill.oblique import ObliqueArrays
-
-    return isinstance(tree, ControllerArrays | ObliqueArrays)
-
-
 def synthesise(cfg: Config, agent: Agent, tree: Any, seed: int) -> dict[str, Any]:
     """Every registered synthesiser's BT of ``tree`` (each verified against it, cached): a
-    command tree's BTs, the front's synthesisers', carry its command table; a controller or
-    oblique tree's one BT is checked on random and boundary states (not cached: it is laid
-    out, not searched for)."""
+    command tree's BTs, the front's synthesisers', carry its command table; a tree whose
+    learner lays out its own BTs (:attr:`ibt.engine.learners.Learner.lay_out`) gets those."""
+    from ibt.engine.learners import learner_of_tree
     from ibt.refine.commands import CommandArrays
     from ibt.synth.registry import SYNTHESISERS, front_synthesisers
 
-    if builds_own_bt(tree):
-        from ibt.synth.controller import SYNTHESISER, check_states, controller_bt
-
-        states = check_states(tree, agent.task, np.zeros((0, agent.task.n_features)),
-                              seed=seed)
-        return {SYNTHESISER: controller_bt(tree, agent.task, states).bt}
+    learner = learner_of_tree(tree)
+    if learner is not None and learner.lay_out is not None:
+        return learner.lay_out(agent, tree, seed)
 
     names = front_synthesisers() if isinstance(tree, CommandArrays) else tuple(SYNTHESISERS)
     return {name: synthesised(cfg, agent.task, agent.algo, name, seed, PIPELINE_SOURCE,
