@@ -226,11 +226,12 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         bar.update(1 if ladder.steps else 0)
 
     lengths = agent_choice.lengths
-    ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
-                        random_mean=random_choice.mean,
-                        deadline=deadline.reserving(CONFIRMATION_RESERVE * baselines),
-                        on_step=on_step,
-                        agent_length=sum(lengths) / len(lengths) if lengths else None)
+    with ticking(bar):
+        ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
+                            random_mean=random_choice.mean,
+                            deadline=deadline.reserving(CONFIRMATION_RESERVE * baselines),
+                            on_step=on_step,
+                            agent_length=sum(lengths) / len(lengths) if lengths else None)
     if warning:
         ladder.notes.insert(0, warning)
     from ibt.distill.relational import MAX_PAIRED_FEATURES
@@ -269,6 +270,34 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         argv=list(argv or []), env_modules=tuple(env_modules), cache_dir=Path(cache_dir),
         ladder=ladder, time_limit=time_limit, elapsed=elapsed, max_nodes=max_nodes,
         restarts=restarts)
+
+
+TICK = 1.0  #: seconds between redraws of the pipeline's bar while a step runs
+
+
+@contextlib.contextmanager
+def ticking(bar: Any, every: float = TICK) -> Iterator[None]:
+    """Redraw ``bar`` every ``every`` seconds while the block runs, so its clock goes on
+    during a long step (a distillation on other cores shows no bar of its own); nothing for a
+    disabled bar."""
+    if bar.disable:
+        yield
+        return
+    import threading
+
+    done = threading.Event()
+
+    def tick() -> None:
+        while not done.wait(every):
+            bar.refresh()
+
+    thread = threading.Thread(target=tick, name="pipeline-bar", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
 
 
 #: the ladder's budget keeps back this many times the baselines' time for the confirmation (the
