@@ -43,9 +43,10 @@ class _HeadlineFilm(Film):
                 f"{step.total_return:.1f}", line)
 
 
-def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: int | None = None
-              ) -> int:
-    """One final episode of ``bt`` as a GIF (the first final seed); returns the frames."""
+def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: int | None = None,
+              max_frames: int | None = None) -> int:
+    """One final episode of ``bt`` as a GIF (the first final seed), every clip's ``every``-th
+    step, or fewer so that at most ``max_frames`` frames are drawn; returns the frames."""
     import imageio.v3 as iio
     from PIL import Image
 
@@ -53,7 +54,10 @@ def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: i
 
     clip = task.clip or DEFAULT_CLIP
     steps = list(episode(task, bt, final_seeds(1)[0], max_steps or clip.max_steps))
-    chosen = steps[::clip.every] + ([] if (len(steps) - 1) % clip.every == 0 else steps[-1:])
+    every = clip.every
+    if max_frames is not None:  # the first and last step always; every-th between them
+        every = max(every, -(-(len(steps) - 1) // max(1, max_frames - 1)))
+    chosen = steps[::every] + ([] if (len(steps) - 1) % every == 0 else steps[-1:])
     film = _HeadlineFilm(task, bt, row)
     images = [film.frame(s) for s in chosen]
     # one palette for every frame, drawn from a few of them (as ibt.views.animate does)
