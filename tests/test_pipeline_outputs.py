@@ -138,13 +138,13 @@ def _gif_frames(path: Path) -> int:
 def test_the_gif_shows_the_recommended_bt_in_few_frames(tmp_path):
     from ibt.bt.json_io import load_json
     from ibt.paths import DATA_DIR
-    from ibt.pipeline.outputs import GIF_FRAMES, write_episode_gif
-    from ibt.views.headline import write_gif
+    from ibt.pipeline.outputs import GIF_FRAMES
+    from ibt.views.headline import pipeline_episode, write_gif
 
     bt = load_json(DATA_DIR / "trees" / "CartPole-v1" / "ppo" / "imitation-bt.json")
     rec = SimpleNamespace(task=CARTPOLE, chosen=SimpleNamespace(bt=bt), algo="callable",
                           budget=SimpleNamespace(smoke=True))
-    frames, note = write_episode_gif(rec, tmp_path / "episode.gif")
+    frames, note = pipeline_episode(rec, tmp_path / "episode.gif")
     assert note is None and frames == _gif_frames(tmp_path / "episode.gif") > 1
     # a long episode is subsampled to the cap, its first and last steps kept
     row = SimpleNamespace(method="recommended BT", expert="ppo")

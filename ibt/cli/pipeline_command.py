@@ -79,8 +79,10 @@ def pipeline_command(args: argparse.Namespace) -> int:
         if first:
             release(folder)
         raise
+    from ibt.views.headline import pipeline_episode
+
     try:
-        write_outputs(rec, folder)
+        write_outputs(rec, folder, pipeline_episode)
     except FolderError as err:
         raise UsageError(str(err)) from None
     verdict = "meets" if rec.met else "MISSES"

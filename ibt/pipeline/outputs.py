@@ -7,8 +7,8 @@ the pipeline owns (:mod:`ibt.pipeline.owned_folder`)."""
 from __future__ import annotations
 
 import shlex
+from collections.abc import Callable
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 from ibt.pipeline.owned_folder import OwnedFolder, claim, write_set
@@ -256,37 +256,9 @@ def beyond_the_agent(rec: Recommendation) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- episode.gif
-def write_episode_gif(rec: Recommendation, target: Path) -> tuple[int, str | None]:
-    """``target``: the recommended BT driving the first choice episode (the first final
-    seed), drawn as the headline BTs are (:func:`ibt.views.headline.write_gif`: the task's clip
-    length and step, at most :data:`GIF_FRAMES` frames; :data:`SMOKE_GIF_STEPS` steps under the
-    smoke budget). Returns the frames written and None, or 0 and a one-line note of why not: a
-    task that cannot render ``rgb_array`` frames gets no GIF, and the run goes on."""
-    import warnings
-
-    from ibt.tasks.task import sdl_video_driver
-    from ibt.views.headline import write_gif
-
-    task = rec.task
-    try:
-        with warnings.catch_warnings(), sdl_video_driver(task.render_driver):
-            warnings.simplefilter("ignore")  # gymnasium warns of a render mode it lacks
-            env = task.make_env()  # its metadata says which frames it renders
-            try:
-                modes = list(getattr(env.unwrapped, "metadata", {}).get("render_modes") or ())
-            finally:
-                env.close()
-            if "rgb_array" not in modes:
-                return 0, (f"no `episode.gif`: {task.name} renders no `rgb_array` frames (its "
-                           f"metadata's render_modes: {', '.join(map(str, modes)) or 'none'})")
-            row = SimpleNamespace(method="recommended BT", expert=rec.algo)
-            frames = write_gif(task, rec.chosen.bt, row, target,
-                               SMOKE_GIF_STEPS if rec.budget.smoke else None, GIF_FRAMES)
-    except Exception as err:  # the user's renderer: a GIF is not worth failing the run
-        target.unlink(missing_ok=True)
-        why = " ".join(f"{type(err).__name__}: {err}".split())[:200]
-        return 0, f"no `episode.gif`: rendering {task.name} failed ({why})"
-    return frames, None
+#: draws ``episode.gif`` of a recommendation at a path: the frames written and None, or 0 and a
+#: one-line note of why not (the views layer's :func:`ibt.views.headline.pipeline_episode`)
+EpisodeDrawer = Callable[[Recommendation, Path], tuple[int, str | None]]
 
 
 def gif_text(rec: Recommendation, frames: int, note: str | None) -> list[str]:
@@ -294,14 +266,13 @@ def gif_text(rec: Recommendation, frames: int, note: str | None) -> list[str]:
     if note is not None:
         return [f"Note: {note}.", ""]
     from ibt.evaluate.rollouts import final_seeds
-    from ibt.views.headline import DEFAULT_CLIP
 
-    steps = SMOKE_GIF_STEPS if rec.budget.smoke else (rec.task.clip or DEFAULT_CLIP).max_steps
+    smoke = f" (its first {SMOKE_GIF_STEPS} steps under the smoke budget)" if (
+        rec.budget.smoke) else ""
     return ["![the recommended BT acting](episode.gif)", "",
             f"`episode.gif`: the recommended BT acting on the first choice episode (seed "
-            f"{final_seeds(1)[0]}) up to step {steps}, in {frames} frames (at most "
-            f"{GIF_FRAMES}: a longer episode is subsampled), each beside the tick that decided "
-            "its action.", ""]
+            f"{final_seeds(1)[0]}){smoke}, in {frames} frames (at most {GIF_FRAMES}: a longer "
+            "episode is subsampled), each beside the tick that decided its action.", ""]
 
 
 # --------------------------------------------------------------------------------- agreement
@@ -335,7 +306,7 @@ def agreement_text(rec: Recommendation) -> list[str]:
 
 def report_text(rec: Recommendation, out: Path, gif: tuple[int, str | None]) -> str:
     """``report.md``; ``gif``: the frames of ``episode.gif``, or 0 and why it was not written
-    (:func:`write_episode_gif`)."""
+    (an :data:`EpisodeDrawer`)."""
     frames, gif_note = gif
     c, keep = rec.chosen, 100 * rec.keep
     if rec.met:
@@ -454,11 +425,14 @@ def incomplete_text(rec: Recommendation, out: Path) -> str:
             + "\n".join(fenced(commands(rec, out)[0], "bash")) + "\n")
 
 
-def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Path]:
+def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder,
+                  draw_episode: EpisodeDrawer | None = None) -> list[Path]:
     """Write :data:`OUTPUTS` (those of :data:`OPTIONAL` where made) into ``out`` as one set
     (:func:`ibt.pipeline.owned_folder.write_set`: an interrupted write leaves the old set, the
     new one, or a ``report.md`` saying the set is incomplete); a run stopped early says so
-    under the report's title.
+    under the report's title. ``draw_episode`` draws ``episode.gif`` (the command line passes
+    :func:`ibt.views.headline.pipeline_episode`: drawings are the views layer's); without it
+    the report says there is none.
 
     ``out`` is a folder checked by :func:`ibt.pipeline.owned_folder.claim` (the CLI claims it
     before any work), or a path, claimed here (:class:`FolderError` if it holds files the
@@ -480,7 +454,8 @@ def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Pa
         atomic_write_text(tmp / "faithful_bt.xml", to_btcpp_xml(faithful))
         draw_bt(bt, tmp / "bt", title=f"{rec.task.name}: {bt.node_count}-node BT")
         draw_front(rec, tmp / "front.png")
-        gif = write_episode_gif(rec, tmp / "episode.gif")
+        gif = (draw_episode(rec, tmp / "episode.gif") if draw_episode is not None
+               else (0, "no `episode.gif`: this run drew none"))
         atomic_write_text(tmp / "report.md", report_text(rec, path, gif))
 
     return write_set(folder, OUTPUTS, write, incomplete_text(rec, path), optional=OPTIONAL)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -76,6 +77,40 @@ def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: i
     return len(frames)
 
 
+def pipeline_episode(rec: Any, target: Path) -> tuple[int, str | None]:
+    """``episode.gif`` of a pipeline run (:class:`ibt.pipeline.recommend.Recommendation`): its
+    recommended BT driving the first final episode, drawn as the headline BTs are (the task's
+    clip length and step; at most ``GIF_FRAMES`` frames, ``SMOKE_GIF_STEPS`` steps under the
+    smoke budget, of :mod:`ibt.pipeline.outputs`). Returns the frames written and None, or 0
+    and a one-line note of why not: a task that renders no ``rgb_array`` frames gets no GIF,
+    and the run goes on."""
+    import warnings
+
+    from ibt.pipeline.outputs import GIF_FRAMES, SMOKE_GIF_STEPS
+    from ibt.tasks.task import sdl_video_driver
+
+    task = rec.task
+    try:
+        with warnings.catch_warnings(), sdl_video_driver(task.render_driver):
+            warnings.simplefilter("ignore")  # gymnasium warns of a render mode it lacks
+            env = task.make_env()  # its metadata says which frames it renders
+            try:
+                modes = list(getattr(env.unwrapped, "metadata", {}).get("render_modes") or ())
+            finally:
+                env.close()
+            if "rgb_array" not in modes:
+                return 0, (f"no `episode.gif`: {task.name} renders no `rgb_array` frames (its "
+                           f"metadata's render_modes: {', '.join(map(str, modes)) or 'none'})")
+            row = SimpleNamespace(method="recommended BT", expert=rec.algo)
+            frames = write_gif(task, rec.chosen.bt, row, target,
+                               SMOKE_GIF_STEPS if rec.budget.smoke else None, GIF_FRAMES)
+    except Exception as err:  # the user's renderer: a GIF is not worth failing the run
+        target.unlink(missing_ok=True)
+        why = " ".join(f"{type(err).__name__}: {err}".split())[:200]
+        return 0, f"no `episode.gif`: rendering {task.name} failed ({why})"
+    return frames, None
+
+
 def lookup_config(cfg: Config) -> Config:
     """Where the headline's BTs are read: ``cfg`` itself, except under ``smoke``, whose budgets
     key other cache entries: there the ``paper`` profile's budgets on the committed cache (the
@@ -138,4 +173,4 @@ def _shown(path: Path, cfg: Config) -> str:
     return path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
 
 
-__all__ = ["lookup_config", "write_gif", "write_headline"]
+__all__ = ["lookup_config", "pipeline_episode", "write_gif", "write_headline"]
