@@ -131,7 +131,8 @@ class Recommendation:
         """``candidate``'s share of agreement with the agent (None: not measured)."""
         if self.agreement is None:
             return None
-        return self.agreement.shares[self.candidates.index(candidate)]
+        at = next(i for i, c in enumerate(self.candidates) if c is candidate)  # not by value
+        return self.agreement.shares[at]
 
     @property
     def stopped(self) -> str | None:
