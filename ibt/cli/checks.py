@@ -297,6 +297,33 @@ def read_input(path: str | Path, what: str, hint: str, limit: int = MAX_BT_BYTES
         raise UsageError(str(err)) from None
 
 
+# ------------------------------------------------------------------------------ agents
+CALLABLE = "callable"  #: the algorithm name of an agent given as MODULE:FUNCTION
+AGENT_HELP = ("with algo callable: a function from one observation to an action (MODULE a .py "
+              "file or an importable module); it is code: pass only agents you trust")
+
+
+def add_agent_options(parser: argparse.ArgumentParser, checkpoint_help: str) -> None:
+    """``--checkpoint`` and ``--agent``: an agent's options, alike in every command that takes
+    one (the positional ``algo``, ``callable`` included, is the command's own)."""
+    parser.add_argument("--checkpoint", help=checkpoint_help)
+    parser.add_argument("--agent", metavar="MODULE:FUNCTION", help=AGENT_HELP)
+
+
+def callable_spec(args: argparse.Namespace) -> str | None:
+    """The agent's ``MODULE:FUNCTION`` where ``algo`` is ``callable`` (which takes ``--agent``
+    and no ``--checkpoint``), None for an SB3 agent (``--checkpoint``, no ``--agent``); a
+    ``UsageError`` for any other mix. The one reading of the agent options."""
+    if args.algo == CALLABLE:
+        if args.agent is None or args.checkpoint is not None:
+            raise UsageError("algo callable takes --agent MODULE:FUNCTION (and no --checkpoint)")
+        return str(args.agent)
+    if args.agent is not None:
+        raise UsageError(f"--agent is for algo callable; a {args.algo} agent is an SB3 "
+                         "checkpoint: pass it with --checkpoint")
+    return None
+
+
 def rerun_command(args: argparse.Namespace, *extra: str) -> str:
     """The user's own command with ``extra`` arguments added (a hint that works)."""
     return "python -m ibt " + shlex.join([*args.argv, *extra])

@@ -18,6 +18,7 @@ if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
 
 from ibt.cli.checks import (
     UsageError,
+    callable_spec,
     check_input,
     check_output,
     check_output_folder,
@@ -96,7 +97,13 @@ def distill_command(args: argparse.Namespace) -> int:
 
     task = task_for(args, args.task)
     out = check_output(args.output, (".json",))
-    expert = load_expert(task, args.algo, args.checkpoint)
+    spec = callable_spec(args)
+    if spec is not None:  # a MODULE:FUNCTION agent, read and checked as the pipeline does
+        from ibt.engine.agent import callable_agent
+
+        expert = callable_agent(task, spec).load()
+    else:
+        expert = load_expert(task, args.algo, args.checkpoint)
     if task.continuous:  # a regression tree, merged into named commands
         return _distill_box(task, expert, out, args)
     overrides = {"n_iterations": args.iterations if args.iterations is not None else
@@ -111,7 +118,7 @@ def distill_command(args: argparse.Namespace) -> int:
     save_tree_file(out, run.best_tree, task,
                    {"algo": args.algo, "method": args.method, "seed": args.seed,
                     "iterations": run.iterations, "best_index": run.best_index,
-                    "env_modules": args.env_module})
+                    "env_modules": args.env_module, **agent_info(spec)})
     print(f"{task.name}/{args.algo}/{args.method}: best tree at iteration {run.best_index} "
           f"({best['leaves']} leaves of at most {config.max_leaf_nodes}, {best['nodes']} nodes, "
           f"mean return {best['selection_mean']:.2f} on {config.selection_episodes} selection "
@@ -121,6 +128,11 @@ def distill_command(args: argparse.Namespace) -> int:
 
 
 DISCRETE_ITERATIONS = 50  #: distill's --iterations on a discrete task (the paper's)
+
+
+def agent_info(spec: str | None) -> dict[str, str]:
+    """A tree file's record of a callable agent (its ``MODULE:FUNCTION``); none for SB3."""
+    return {} if spec is None else {"agent": spec}
 
 
 def _distill_box(task: Any, expert: Any, out: Path, args: argparse.Namespace) -> int:
@@ -153,7 +165,7 @@ def _distill_box(task: Any, expert: Any, out: Path, args: argparse.Namespace) ->
                    {"algo": args.algo, "method": args.method, "seed": args.seed,
                     "iterations": run.iterations, "best_index": run.best_index,
                     "commands": chosen.commands.to_dict(), "command_choice": rows,
-                    "env_modules": args.env_module})
+                    "env_modules": args.env_module, **agent_info(args.agent)})
     print(f"{task.name}/{args.algo}/{args.method}: best regression tree at iteration "
           f"{run.best_index} ({best['leaves']} leaves of at most {config.max_leaf_nodes}, "
           f"mean return {best['selection_mean']:.2f} on {config.selection_episodes} selection "

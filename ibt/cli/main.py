@@ -13,8 +13,9 @@ Your own environment: ``--env-module PKG.MODULE`` (every subcommand) imports a m
 registers gymnasium environments and, optionally, ibt tasks with readable feature and action
 names (``ibt.tasks.catalogue.register_task``); gymnasium's ``PKG.MODULE:EnvId`` works as a task
 name too.
-``distill`` takes any gymnasium env id with an SB3 checkpoint (``--checkpoint``); the features
-are then named x0, x1, ... and tasks without a budget get a 16-leaf tree.
+``distill`` takes any gymnasium env id with an SB3 checkpoint (``--checkpoint``) or, as
+``pipeline``, an agent ``callable --agent MODULE:FUNCTION``; the features are then named x0,
+x1, ... and tasks without a budget get a 16-leaf tree.
 
 Files: decision trees (``ibt-tree``) and BTs are JSON and reading them never runs code; a tree
 file of earlier versions (``.joblib``, a pickle) is converted once, if you trust its source, by
@@ -42,6 +43,7 @@ if TYPE_CHECKING:  # the CLI imports the compute stack only when a command runs
 
 from ibt.cli.bt_commands import evaluate_command, export_command, run_btcpp_command
 from ibt.cli.checks import (
+    CALLABLE,
     EPISODE_STEPS,
     EPISODES,
     EXIT_BAD_INPUT,
@@ -60,6 +62,7 @@ from ibt.cli.checks import (
     TIMESTEPS,
     Terminated,
     UsageError,
+    add_agent_options,
     duration_arg,
     seconds_arg,
 )
@@ -117,10 +120,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     dist = command("distill", help="distil an expert into a decision tree")
     dist.add_argument("task", help="a registered task, any gymnasium env id, or MODULE:EnvId")
-    dist.add_argument("algo", choices=ALGOS)
+    dist.add_argument("algo", choices=(*ALGOS, CALLABLE),
+                      help="the agent's algorithm (an SB3 checkpoint), or callable with --agent")
     dist.add_argument("-o", "--output", required=True, help="decision-tree file (.json)")
-    dist.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert); a "
-                      "checkpoint is code (pickles): use only ones from a trusted source")
+    add_agent_options(dist, "SB3 checkpoint (default: the committed expert); a checkpoint is "
+                      "code (pickles): use only ones from a trusted source")
     dist.add_argument("--method", default="imitation-bt",
                       choices=("bc", "dagger", "viper", "imitation-bt", "imitation-bt+rel"))
     dist.add_argument("--seed", type=SEED, default=0)
@@ -209,17 +213,15 @@ def build_parser() -> argparse.ArgumentParser:
     pl = command("pipeline", help="from an agent to a recommended BT, anytime: distil and refine "
                  "at increasing leaf limits, search structure where the target is not kept, "
                  "synthesise every verified BT, evaluate on held-out episodes, and write bt.json, "
-                 "bt.xml, bt.png, bt.svg, front.png and report.md")
+                 "bt.xml, bt.png, bt.svg, faithful_bt.json, faithful_bt.xml, front.png, "
+                 "episode.gif and report.md")
     pl.add_argument("task", help="a registered task, any gymnasium env id, or MODULE:EnvId")
-    pl.add_argument("algo", choices=(*ALGOS, "callable"),
+    pl.add_argument("algo", choices=(*ALGOS, CALLABLE),
                     help="the agent's algorithm (an SB3 checkpoint), or callable with --agent")
     pl.add_argument("-o", "--output", required=True, metavar="DIR",
                     help="folder to write: new, empty, or one the pipeline wrote before (its "
                     "marker .ibt-pipeline.json lists its files); see --force")
-    pl.add_argument("--checkpoint", help="SB3 checkpoint (default: the committed expert)")
-    pl.add_argument("--agent", metavar="MODULE:FUNCTION",
-                    help="with algo callable: a function from one observation to an action "
-                    "(MODULE a .py file or an importable module)")
+    add_agent_options(pl, "SB3 checkpoint (default: the committed expert)")
     pl.add_argument("--keep", type=keep_arg, default=0.95,
                     help="target share of the agent's random-normalised return (default 0.95)")
     pl.add_argument("--time", type=duration_arg, default="10m", metavar="DURATION",

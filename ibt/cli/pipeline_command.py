@@ -14,6 +14,7 @@ from ibt.cli.checks import (
     MAX_LEAVES,
     MAX_REFINE_EPISODES,
     UsageError,
+    callable_spec,
     check_cache_folder,
     check_input,
     check_not_input,
@@ -37,14 +38,10 @@ def pipeline_command(args: argparse.Namespace) -> int:
         raise UsageError(f"--cache-dir {cache} is the output folder itself; drop --cache-dir "
                          f"(the cache then goes to {out / 'cache'}) or name another folder")
     task = task_for(args, args.task)
-    if args.algo == "callable":
-        if args.agent is None or args.checkpoint is not None:
-            raise UsageError("algo callable takes --agent MODULE:FUNCTION (and no --checkpoint)")
-        agent = callable_agent(task, args.agent)
+    spec = callable_spec(args)
+    if spec is not None:
+        agent = callable_agent(task, spec)
     else:
-        if args.agent is not None:
-            raise UsageError(f"--agent is for algo callable; a {args.algo} agent is an SB3 "
-                             "checkpoint: pass it with --checkpoint")
         checkpoint = args.checkpoint
         if checkpoint is None:
             from ibt.experts.expert import expert_path
@@ -82,8 +79,10 @@ def pipeline_command(args: argparse.Namespace) -> int:
         if first:
             release(folder)
         raise
+    from ibt.views.headline import pipeline_episode
+
     try:
-        write_outputs(rec, folder)
+        write_outputs(rec, folder, pipeline_episode)
     except FolderError as err:
         raise UsageError(str(err)) from None
     verdict = "meets" if rec.met else "MISSES"

@@ -261,7 +261,8 @@ def interactive_loop(task: Task, expert: Expert, config: Any, seed: int, learner
     predict: Callable[[np.ndarray], np.ndarray] | None = None
     start = time.perf_counter()
     bar = tqdm(range(n), desc=f"{config.method} {task.name}/{expert.algo} s{seed}",
-               disable=not progress, leave=False)
+               disable=not progress, leave=False, unit="it")
+    shown = LoopProgress(bar)
     n_labels = 0
     for i in bar:
         beta = config.beta(i, n)
@@ -272,10 +273,12 @@ def interactive_loop(task: Task, expert: Expert, config: Any, seed: int, learner
             features.append(task.features(obs))
             labels.append(expert_actions)
             weights.append(weight)
+            shown.labelled(len(obs))
             if predict is None or beta >= 1.0:
                 return expert_actions
             return learner.mix(expert_actions, predict(features[-1]), beta, rng)
 
+        shown.phase("collecting")
         rollout(task, act, iteration_seeds(seed, i), n_envs=config.collect_envs,
                 budget=config.labels_per_iteration)
         x = np.concatenate(features)
@@ -283,13 +286,51 @@ def interactive_loop(task: Task, expert: Expert, config: Any, seed: int, learner
         new_labels, n_labels = len(y) - n_labels, len(y)
         if config.weighted:
             x, y = resample(x, y, weights, rng)
+        shown.phase("fitting")
         tree = learner.fit(x, y)
         predict = learner.predictor(tree)
+        shown.phase("scoring")
         record_iteration(record, scored, tree, learner.signature(tree), i, beta, new_labels,
                          n_labels, task, _on_observations(task, predict), eval_seeds,
                          config.eval_envs)
-        bar.set_postfix(best=max(s for s, _ in scored.values()), beta=f"{beta:.2f}")
+        shown.best = max(s for s, _ in scored.values())
+    bar.close()
     return choose_best(record, start)
+
+
+class LoopProgress:
+    """What the loop's bar shows beside its iterations: the expert labels collected so far,
+    what the iteration is doing and the best tree's selection mean. The bar is redrawn as the
+    labels come in (at most every :attr:`interval` seconds), so a long iteration does not look
+    stalled; a disabled bar shows and costs nothing."""
+
+    interval = 0.5  #: seconds between redraws while labels come in
+
+    def __init__(self, bar: Any) -> None:
+        self.bar, self.labels, self.doing = bar, 0, ""
+        self.best: float | None = None
+        self.drawn = time.monotonic()
+
+    def text(self) -> str:
+        best = "" if self.best is None else f", best {self.best:.2f}"
+        return f"{self.labels:,} labels{best}; {self.doing}"
+
+    def phase(self, doing: str) -> None:
+        """The iteration's phase (``collecting``, ``fitting``, ``scoring``), shown now."""
+        if self.bar.disable:
+            return
+        self.doing = doing
+        self.bar.set_postfix_str(self.text())
+        self.drawn = time.monotonic()
+
+    def labelled(self, count: int) -> None:
+        """``count`` new expert labels; redraws the bar when :attr:`interval` has passed."""
+        if self.bar.disable:
+            return
+        self.labels += count
+        if time.monotonic() - self.drawn >= self.interval:
+            self.bar.set_postfix_str(self.text())
+            self.drawn = time.monotonic()
 
 
 def _on_observations(task: Task, predict: Callable[[np.ndarray], np.ndarray]) -> Any:

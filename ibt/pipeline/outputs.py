@@ -1,10 +1,13 @@
-"""The files of ``python -m ibt pipeline``: ``bt.json``, ``bt.xml``, ``bt.png``, ``bt.svg``,
-``front.png`` and ``report.md`` (:func:`write_outputs`), written as one set into a folder the
-pipeline owns (:mod:`ibt.pipeline.owned_folder`)."""
+"""The files of ``python -m ibt pipeline`` (:func:`write_outputs`): the recommended BT
+(``bt.json``, ``bt.xml``, ``bt.png``, ``bt.svg``), the BT that agrees most with the agent
+(``faithful_bt.json``, ``faithful_bt.xml``), ``front.png``, ``episode.gif`` (the recommended
+BT acting, where the task renders frames) and ``report.md``, written as one set into a folder
+the pipeline owns (:mod:`ibt.pipeline.owned_folder`)."""
 
 from __future__ import annotations
 
 import shlex
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +15,12 @@ from ibt.pipeline.owned_folder import OwnedFolder, claim, write_set
 from ibt.pipeline.recommend import Recommendation
 
 #: the set a run writes; report.md last (it says what the others are)
-OUTPUTS = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
+OUTPUTS = ("bt.json", "bt.xml", "bt.png", "bt.svg", "faithful_bt.json", "faithful_bt.xml",
+           "front.png", "episode.gif", "report.md")
+#: files a run may leave out (said in the report); an earlier run's copy is then removed
+OPTIONAL = ("episode.gif",)
+GIF_FRAMES = 300  #: episode.gif: at most this many frames (a longer episode is subsampled)
+SMOKE_GIF_STEPS = 20  #: episode.gif under ``--budget smoke``: the episode's first steps only
 
 
 # ---------------------------------------------------------------------------- the BT as rules
@@ -247,8 +255,59 @@ def beyond_the_agent(rec: Recommendation) -> list[str]:
             "more `--episodes`.", ""]
 
 
-def report_text(rec: Recommendation, out: Path) -> str:
-    """``report.md``."""
+# ---------------------------------------------------------------------------- episode.gif
+#: draws ``episode.gif`` of a recommendation at a path: the frames written and None, or 0 and a
+#: one-line note of why not (the views layer's :func:`ibt.views.headline.pipeline_episode`)
+EpisodeDrawer = Callable[[Recommendation, Path], tuple[int, str | None]]
+
+
+def gif_text(rec: Recommendation, frames: int, note: str | None) -> list[str]:
+    """The report's lines on ``episode.gif`` (``frames`` of them), or on why there is none."""
+    if note is not None:
+        return [f"Note: {note}.", ""]
+    from ibt.evaluate.rollouts import final_seeds
+
+    smoke = f" (its first {SMOKE_GIF_STEPS} steps under the smoke budget)" if (
+        rec.budget.smoke) else ""
+    return ["![the recommended BT acting](episode.gif)", "",
+            f"`episode.gif`: the recommended BT acting on the first choice episode (seed "
+            f"{final_seeds(1)[0]}){smoke}, in {frames} frames (at most {GIF_FRAMES}: a longer "
+            "episode is subsampled), each beside the tick that decided its action.", ""]
+
+
+# --------------------------------------------------------------------------------- agreement
+def _share(value: float | None) -> str:
+    return "not measured" if value is None else f"{value:.3f}"
+
+
+def agreement_text(rec: Recommendation) -> list[str]:
+    """The report's section on the BTs' agreement with the agent and the most faithful BT."""
+    a = rec.agreement
+    if a is None:
+        return []
+    how = ("the BT's action is the agent's" if a.tolerance is None else
+           f"every dimension of the BT's command is within {100 * a.tolerance:.0f} % of its "
+           "range of the agent's action (both clipped to the action box)")
+    f, c = rec.faithful, rec.chosen
+    same = (" It is the recommended BT." if f.bt.to_json() == c.bt.to_json() else
+            f" The recommended BT agrees on {_share(rec.agreement_of(c))}: a BT may keep the "
+            "agent's return while acting otherwise where it matters little.")
+    return [
+        "## Agreement with the agent", "",
+        f"Agreement is the share of the {a.states:,} states the agent visited on the first "
+        f"{a.episodes} confirmation episodes where {how}; the uniform random policy agrees on "
+        f"{_share(a.random)} of them. The candidates' agreements are in the front's table.", "",
+        f"Most faithful: the **{f.bt_nodes}-node BT** ({f.bt_method}) of the {f.label} tree "
+        f"at leaf limit {f.leaf_limit}, agreement **{_share(rec.agreement_of(f))}**, mean "
+        f"return {f.mean_return:.2f} ({f.retention:.1f} % of the agent) on the choice "
+        f"episodes, in `faithful_bt.json` and `faithful_bt.xml`; it is chosen among every "
+        f"verified BT of the front (highest agreement, then fewest nodes).{same}", ""]
+
+
+def report_text(rec: Recommendation, out: Path, gif: tuple[int, str | None]) -> str:
+    """``report.md``; ``gif``: the frames of ``episode.gif``, or 0 and why it was not written
+    (an :data:`EpisodeDrawer`)."""
+    frames, gif_note = gif
     c, keep = rec.chosen, 100 * rec.keep
     if rec.met:
         verdict = (f"**Target met**: the recommended BT keeps {rec.retention:.1f} % of the agent "
@@ -263,15 +322,22 @@ def report_text(rec: Recommendation, out: Path) -> str:
                    f"{rec.retention:.1f} % on the confirmation episodes. Next: "
                    f"{next_step(rec)}.")
     rows = ["| leaf limit | stage | leaves | BT nodes | relational tests | smallest BT by | "
-            "mean return | retention % |", "|---|---|---|---|---|---|---|---|"]
+            "mean return | retention % | agreement |", "|---|---|---|---|---|---|---|---|---|"]
+    faithful = rec.faithful if rec.agreement is not None else None
     for cand in rec.candidates:
-        mark = " **(recommended)**" if cand is c else ""
+        marks = [m for m, which in (("recommended", c), ("most faithful", faithful))
+                 if cand is which]
+        mark = f" **({', '.join(marks)})**" if marks else ""
         rows.append(f"| {cand.leaf_limit} | {cand.label}{mark} | {cand.leaves} | "
                     f"{cand.bt_nodes} | {cand.relational_tests} | {cand.bt_method} | "
-                    f"{cand.mean_return:.2f} | {cand.retention:.1f} |")
-    returns = ["| policy | mean return | interval of the mean |", "|---|---|---|"]
+                    f"{cand.mean_return:.2f} | {cand.retention:.1f} | "
+                    f"{_share(rec.agreement_of(cand))} |")
+    returns = ["| policy | mean return | interval of the mean | agreement with the agent |",
+               "|---|---|---|---|"]
+    agreeing = {"agent": "1 (itself)", "recommended BT": _share(rec.agreement_of(c)),
+                "random": _share(rec.agreement.random if rec.agreement else None)}
     for name, r in (("agent", rec.agent), ("recommended BT", rec.bt), ("random", rec.random)):
-        returns.append(f"| {name} | {r.mean:.2f} | {_interval(r.returns)} |")
+        returns.append(f"| {name} | {r.mean:.2f} | {_interval(r.returns)} | {agreeing[name]} |")
     sizes = ", ".join(f"{m} {bt.node_count}" for m, bt in c.bts.items())
     cache = (rec.cache_dir.relative_to(out) if rec.cache_dir and rec.cache_dir.is_relative_to(out)
              else rec.cache_dir)
@@ -311,13 +377,16 @@ def report_text(rec: Recommendation, out: Path) -> str:
         "commands linear in up to four features; both lay out one rule per leaf, are refined "
         "by return (thresholds, weights, biases), and their BT is checked to send exactly "
         "their tree's decisions.",
-        "", *rows, "", "![front](front.png)", "", *ladder_text(rec),
+        "", *rows, "", "![front](front.png)", "", *agreement_text(rec), *ladder_text(rec),
         "## The BT as rules (the first rule that holds decides)", "",
-        *fenced(rules_text(c.bt)), "", "![the BT](bt.png)", "",
+        *fenced(rules_text(c.bt)), "", "![the BT](bt.png)", "", *gif_text(rec, frames, gif_note),
         "## Files", "",
         "`bt.json` (this package's BT format), `bt.xml` (BehaviorTree.CPP v4, portable "
-        f"flavour), `bt.png`/`bt.svg` (drawing), `front.png`, this report; `{cache}` holds "
-        "every step, so a rerun with a larger budget repeats only what changed.", "",
+        "flavour), `bt.png`/`bt.svg` (drawing), `faithful_bt.json`/`faithful_bt.xml` (the "
+        "BT that agrees most with the agent), `front.png`, "
+        f"{'`episode.gif` (the recommended BT acting), ' if gif_note is None else ''}"
+        f"this report; `{cache}` holds every step, so a rerun with a larger budget repeats "
+        "only what changed.", "",
         "## Reproduce", "",
         f"{'Agent' if rec.algo == 'callable' else 'Checkpoint'} `{rec.checkpoint}` "
         f"(SHA-256 prefix {rec.checkpoint_sha256}), seed "
@@ -356,10 +425,14 @@ def incomplete_text(rec: Recommendation, out: Path) -> str:
             + "\n".join(fenced(commands(rec, out)[0], "bash")) + "\n")
 
 
-def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Path]:
-    """Write :data:`OUTPUTS` into ``out`` as one set (:func:`ibt.pipeline.owned_folder.write_set`:
-    an interrupted write leaves the old set, the new one, or a ``report.md`` saying the set is
-    incomplete); a run stopped early says so under the report's title.
+def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder,
+                  draw_episode: EpisodeDrawer | None = None) -> list[Path]:
+    """Write :data:`OUTPUTS` (those of :data:`OPTIONAL` where made) into ``out`` as one set
+    (:func:`ibt.pipeline.owned_folder.write_set`: an interrupted write leaves the old set, the
+    new one, or a ``report.md`` saying the set is incomplete); a run stopped early says so
+    under the report's title. ``draw_episode`` draws ``episode.gif`` (the command line passes
+    :func:`ibt.views.headline.pipeline_episode`: drawings are the views layer's); without it
+    the report says there is none.
 
     ``out`` is a folder checked by :func:`ibt.pipeline.owned_folder.claim` (the CLI claims it
     before any work), or a path, claimed here (:class:`FolderError` if it holds files the
@@ -372,14 +445,17 @@ def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Pa
     folder = out if isinstance(out, OwnedFolder) else claim(
         out, OUTPUTS, cache=rec.cache_dir)
     path = folder.path
-    report = report_text(rec, path)
 
     def write(tmp: Path) -> None:
-        bt = rec.chosen.bt
+        bt, faithful = rec.chosen.bt, rec.faithful.bt
         save_json(bt, tmp / "bt.json")
         atomic_write_text(tmp / "bt.xml", to_btcpp_xml(bt))
+        save_json(faithful, tmp / "faithful_bt.json")
+        atomic_write_text(tmp / "faithful_bt.xml", to_btcpp_xml(faithful))
         draw_bt(bt, tmp / "bt", title=f"{rec.task.name}: {bt.node_count}-node BT")
         draw_front(rec, tmp / "front.png")
-        atomic_write_text(tmp / "report.md", report)
+        gif = (draw_episode(rec, tmp / "episode.gif") if draw_episode is not None
+               else (0, "no `episode.gif`: this run drew none"))
+        atomic_write_text(tmp / "report.md", report_text(rec, path, gif))
 
-    return write_set(folder, OUTPUTS, write, incomplete_text(rec, path))
+    return write_set(folder, OUTPUTS, write, incomplete_text(rec, path), optional=OPTIONAL)

@@ -291,24 +291,30 @@ def _check_unchanged(folder: OwnedFolder, names: list[str]) -> None:
 
 
 def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path], None],
-              incomplete: str, last: str = "report.md") -> list[Path]:
+              incomplete: str, last: str = "report.md", optional: tuple[str, ...] = ()
+              ) -> list[Path]:
     """Write the files ``names`` as one set: ``write(tmp)`` makes them in a hidden folder beside
     them, then the commit renames them into place (``last`` after the others, replaced by the
-    text ``incomplete`` while they are renamed) and records them in the marker."""
+    text ``incomplete`` while they are renamed) and records them in the marker. ``write`` may
+    leave out the names of ``optional``: an earlier set's file of such a name is then removed
+    in the commit where the marker proves it the pipeline's (the folder never pairs a new
+    report with an old file), and left alone otherwise. Returns the paths written."""
     take(folder)
     tmp = _new_temporary(folder.path)
     try:
         write(tmp)
         _hook("written")
-        missing = [n for n in names if not (tmp / n).is_file()]
+        missing = [n for n in names if not (tmp / n).is_file() and n not in optional]
         if missing:
             raise RuntimeError(f"the pipeline did not make {', '.join(missing)}")
-        new = {n: sha256(tmp / n) for n in names}
+        dropped = [n for n in names if not (tmp / n).is_file()]
+        names = tuple(n for n in names if n not in dropped)
         stub = tmp / f".{last}.incomplete"
         stub.write_text(incomplete)
         stub_digest = sha256(stub)
+        new = {n: sha256(tmp / n) for n in names}
         with signals_held():
-            _check_unchanged(folder, list(names))
+            _check_unchanged(folder, [*names, *dropped])
             old = _marker(folder.path).get("files", {})
             files = {n: d if isinstance(d, list) else [d] for n, d in old.items()}
             for n in names:
@@ -326,7 +332,18 @@ def write_set(folder: OwnedFolder, names: tuple[str, ...], write: Callable[[Path
             for n in (*[n for n in names if n != last], last):
                 os.replace(tmp / n, folder.path / n)
                 _hook(f"commit:{n}")
-            done = {n: d for n, d in files.items() if n not in names} | {
+            kept = []  # a dropped name's file that is not provably ours stays, and is listed
+            for n in dropped:
+                path = folder.path / n
+                if not os.path.lexists(path):
+                    continue
+                if path.is_symlink() or not path.is_file() or not _ours({"files": files}, n,
+                                                                        path):
+                    kept.append(n)
+                    continue
+                path.unlink()
+            done = {n: d for n, d in files.items()
+                    if n not in names and (n not in dropped or n in kept)} | {
                 n: [new[n]] for n in names}
             _write_marker(folder.path, {"format": FORMAT, "files": done,
                                         "cache": folder.cache, "state": "complete",

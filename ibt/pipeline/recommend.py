@@ -48,8 +48,9 @@ from ibt.profiles import Config
 from ibt.signals import OverTime, Terminated, check_time, time_cap
 from ibt.tasks.task import Task
 
-__all__ = ["DEFAULT_KEEP", "LEAF_LIMITS", "RANDOM_SEED", "Budget", "Candidate", "Recommendation",
-           "Returns", "as_facts", "bt_digest", "choose", "held_out", "parse_budget", "recommend"]
+__all__ = ["DEFAULT_KEEP", "LEAF_LIMITS", "RANDOM_SEED", "Agreement", "Budget", "Candidate",
+           "Recommendation", "Returns", "as_facts", "bt_digest", "choose", "held_out",
+           "measure_agreement", "most_faithful", "parse_budget", "recommend"]
 
 LEAF_LIMITS = (4, 8, 16, 32)
 DEFAULT_KEEP = 0.95
@@ -116,6 +117,22 @@ class Recommendation:
     elapsed: float = 0.0  # seconds the ladder ran
     max_nodes: int | None = None
     restarts: int = 1
+    agreement: Agreement | None = None  # every candidate's action agreement with the agent
+
+    @property
+    def faithful(self) -> Candidate:
+        """The candidate whose BT agrees most with the agent (:func:`most_faithful`); the
+        chosen one where agreement was not measured."""
+        if self.agreement is None:
+            return self.chosen
+        return most_faithful(self.candidates, self.agreement.shares)
+
+    def agreement_of(self, candidate: Candidate) -> float | None:
+        """``candidate``'s share of agreement with the agent (None: not measured)."""
+        if self.agreement is None:
+            return None
+        at = next(i for i, c in enumerate(self.candidates) if c is candidate)  # not by value
+        return self.agreement.shares[at]
 
     @property
     def stopped(self) -> str | None:
@@ -130,6 +147,86 @@ class Recommendation:
     @property
     def met(self) -> bool:
         return self.met_on_choice and self.retention >= 100 * self.keep
+
+
+AGREEMENT_STATES = 20_000  #: at most this many of the agent's visited states are compared
+BOX_TOLERANCE = 0.05  #: a Box action agrees within this share of each dimension's range
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """How often each candidate's BT sends the agent's action on the states the agent visits
+    in the confirmation episodes (held out from every step of the search): ``shares[i]`` is
+    candidate ``i``'s; ``random`` the uniform random policy's, for scale. On a Box task an
+    action agrees when every dimension is within :data:`BOX_TOLERANCE` of its range of the
+    agent's (both clipped to the Box)."""
+
+    shares: list[float]
+    random: float
+    states: int
+    episodes: int
+    tolerance: float | None = None  # Box tasks: the share of each dimension's range
+
+
+def visited_states(task: Task, act: Any, seeds: list[int], limit: int = AGREEMENT_STATES
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The observations the policy ``act`` visits on ``seeds`` (whole episodes, started while
+    fewer than ``limit`` states were seen, then cut at ``limit``), its actions there, and the
+    episodes they come from."""
+    from ibt.evaluate.rollouts import rollout
+
+    seen: list[np.ndarray] = []
+    sent: list[np.ndarray] = []
+
+    def record(obs: np.ndarray, actions: np.ndarray) -> None:
+        seen.append(np.array(obs))
+        sent.append(np.array(actions))
+
+    done = rollout(task, act, seeds, budget=limit, on_step=record)
+    return np.concatenate(seen)[:limit], np.concatenate(sent)[:limit], len(done.returns)
+
+
+def agreement_share(task: Task, agent_actions: np.ndarray, actions: np.ndarray) -> float:
+    """The share of rows where ``actions`` are the agent's: equal indices, or on a Box task
+    every dimension within :data:`BOX_TOLERANCE` of its range (both clipped to the Box)."""
+    if not task.continuous:
+        return float(np.mean(np.asarray(actions).reshape(-1) ==
+                             np.asarray(agent_actions).reshape(-1)))
+    low, high = np.asarray(task.action_low), np.asarray(task.action_high)
+    a = np.clip(np.asarray(agent_actions, dtype=np.float64).reshape(-1, len(low)), low, high)
+    b = np.clip(np.asarray(actions, dtype=np.float64).reshape(-1, len(low)), low, high)
+    return float(np.mean((np.abs(a - b) <= BOX_TOLERANCE * (high - low)).all(axis=1)))
+
+
+def measure_agreement(agent: Agent, candidates: list[Candidate], seeds: list[int]
+                      ) -> Agreement:
+    """Every candidate's :class:`Agreement` with ``agent`` on the states it visits on
+    ``seeds`` (each candidate through its smallest BT: all of a tree's BTs decide alike)."""
+    task = agent.task
+    obs, agent_actions, episodes = visited_states(task, checked(lambda: agent.load().act)(),
+                                                  seeds)
+    shares = [agreement_share(task, agent_actions, bt_policy(task, c.bt)(obs))
+              for c in candidates]
+    random = agreement_share(task, agent_actions, agent.random_act()(obs))
+    return Agreement(shares, random, len(obs), episodes,
+                     BOX_TOLERANCE if task.continuous else None)
+
+
+def most_faithful(candidates: list[Candidate], shares: list[float]) -> Candidate:
+    """The candidate of highest agreement (ties: fewer BT nodes, higher retention, the
+    simpler learner, the earlier)."""
+    best = max(range(len(candidates)), key=lambda i: (
+        shares[i], -candidates[i].bt_nodes, candidates[i].retention, -candidates[i].rank, -i))
+    return candidates[best]
+
+
+def bt_policy(task: Task, bt: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """``act`` of a BT on raw observations: action indices, or a Box task's command vectors."""
+    if task.continuous:
+        from ibt.synth.commands import CommandBTPolicy
+
+        return CommandBTPolicy(task, bt).act
+    return BTPolicy(task, bt).act
 
 
 def pipeline_config(budget: Budget, cache_dir: Path, episodes: int | None, progress: bool
@@ -226,11 +323,12 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         bar.update(1 if ladder.steps else 0)
 
     lengths = agent_choice.lengths
-    ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
-                        random_mean=random_choice.mean,
-                        deadline=deadline.reserving(CONFIRMATION_RESERVE * baselines),
-                        on_step=on_step,
-                        agent_length=sum(lengths) / len(lengths) if lengths else None)
+    with ticking(bar):
+        ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
+                            random_mean=random_choice.mean,
+                            deadline=deadline.reserving(CONFIRMATION_RESERVE * baselines),
+                            on_step=on_step,
+                            agent_length=sum(lengths) / len(lengths) if lengths else None)
     if warning:
         ladder.notes.insert(0, warning)
     from ibt.distill.relational import MAX_PAIRED_FEATURES
@@ -249,18 +347,15 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         raise ValueError("no candidate was finished in the time given: raise --time")
     chosen, met = choose(ladder.candidates, keep, max_nodes)
     bt = chosen.bt
-    if task.continuous:
-        from ibt.synth.commands import CommandBTPolicy
-
-        bt_act: Any = lambda: CommandBTPolicy(task, bt).act  # noqa: E731
-    else:
-        bt_act = lambda: BTPolicy(task, bt).act  # noqa: E731
     with within(deadline, "confirming the recommended BT"):
         confirmed = (
             measure.returns_of(quiet, task, agent_key, checked(lambda: agent.load().act),
                                confirm),
-            measure.returns_of(quiet, task, {"bt": bt_digest(bt)}, checked(bt_act), confirm),
+            measure.returns_of(quiet, task, {"bt": bt_digest(bt)},
+                               checked(lambda: bt_policy(task, bt)), confirm),
             measure.returns_of(quiet, task, random_key, checked(agent.random_act), confirm))
+    with within(deadline, "measuring every BT's agreement with the agent"):
+        agreement = measure_agreement(agent, ladder.candidates, confirm)
     return Recommendation(
         task, agent.algo, Path(agent.source), agent.digest, keep, budget, settings.rungs, seed,
         cfg.final_episodes, ladder.candidates, chosen, met,
@@ -268,7 +363,35 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         agent_choice=agent_choice.mean, random_choice=random_choice.mean,
         argv=list(argv or []), env_modules=tuple(env_modules), cache_dir=Path(cache_dir),
         ladder=ladder, time_limit=time_limit, elapsed=elapsed, max_nodes=max_nodes,
-        restarts=restarts)
+        restarts=restarts, agreement=agreement)
+
+
+TICK = 1.0  #: seconds between redraws of the pipeline's bar while a step runs
+
+
+@contextlib.contextmanager
+def ticking(bar: Any, every: float = TICK) -> Iterator[None]:
+    """Redraw ``bar`` every ``every`` seconds while the block runs, so its clock goes on
+    during a long step (a distillation on other cores shows no bar of its own); nothing for a
+    disabled bar."""
+    if bar.disable:
+        yield
+        return
+    import threading
+
+    done = threading.Event()
+
+    def tick() -> None:
+        while not done.wait(every):
+            bar.refresh()
+
+    thread = threading.Thread(target=tick, name="pipeline-bar", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
 
 
 #: the ladder's budget keeps back this many times the baselines' time for the confirmation (the
@@ -315,4 +438,6 @@ def as_facts(rec: Recommendation) -> dict[str, Any]:
             "agent_return": rec.agent.mean, "bt_return": rec.bt.mean,
             "random_return": rec.random.mean, "stopped": rec.stopped,
             "steps": list(rec.ladder.steps), "skipped": list(rec.ladder.skipped),
-            "max_nodes": rec.max_nodes, "restarts": rec.restarts}
+            "max_nodes": rec.max_nodes, "restarts": rec.restarts,
+            "agreement": rec.agreement_of(rec.chosen),
+            "faithful": {**rec.faithful.row(), "agreement": rec.agreement_of(rec.faithful)}}

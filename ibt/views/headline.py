@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -43,9 +44,10 @@ class _HeadlineFilm(Film):
                 f"{step.total_return:.1f}", line)
 
 
-def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: int | None = None
-              ) -> int:
-    """One final episode of ``bt`` as a GIF (the first final seed); returns the frames."""
+def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: int | None = None,
+              max_frames: int | None = None) -> int:
+    """One final episode of ``bt`` as a GIF (the first final seed), every clip's ``every``-th
+    step, or fewer so that at most ``max_frames`` frames are drawn; returns the frames."""
     import imageio.v3 as iio
     from PIL import Image
 
@@ -53,7 +55,10 @@ def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: i
 
     clip = task.clip or DEFAULT_CLIP
     steps = list(episode(task, bt, final_seeds(1)[0], max_steps or clip.max_steps))
-    chosen = steps[::clip.every] + ([] if (len(steps) - 1) % clip.every == 0 else steps[-1:])
+    every = clip.every
+    if max_frames is not None:  # the first and last step always; every-th between them
+        every = max(every, -(-(len(steps) - 1) // max(1, max_frames - 1)))
+    chosen = steps[::every] + ([] if (len(steps) - 1) % every == 0 else steps[-1:])
     film = _HeadlineFilm(task, bt, row)
     images = [film.frame(s) for s in chosen]
     # one palette for every frame, drawn from a few of them (as ibt.views.animate does)
@@ -70,6 +75,40 @@ def write_gif(task: Task, bt: BehaviorTree, row: Any, target: Path, max_steps: i
         iio.imwrite(tmp, np.stack(frames), extension=".gif", plugin="pillow",
                     duration=durations, loop=0)
     return len(frames)
+
+
+def pipeline_episode(rec: Any, target: Path) -> tuple[int, str | None]:
+    """``episode.gif`` of a pipeline run (:class:`ibt.pipeline.recommend.Recommendation`): its
+    recommended BT driving the first final episode, drawn as the headline BTs are (the task's
+    clip length and step; at most ``GIF_FRAMES`` frames, ``SMOKE_GIF_STEPS`` steps under the
+    smoke budget, of :mod:`ibt.pipeline.outputs`). Returns the frames written and None, or 0
+    and a one-line note of why not: a task that renders no ``rgb_array`` frames gets no GIF,
+    and the run goes on."""
+    import warnings
+
+    from ibt.pipeline.outputs import GIF_FRAMES, SMOKE_GIF_STEPS
+    from ibt.tasks.task import sdl_video_driver
+
+    task = rec.task
+    try:
+        with warnings.catch_warnings(), sdl_video_driver(task.render_driver):
+            warnings.simplefilter("ignore")  # gymnasium warns of a render mode it lacks
+            env = task.make_env()  # its metadata says which frames it renders
+            try:
+                modes = list(getattr(env.unwrapped, "metadata", {}).get("render_modes") or ())
+            finally:
+                env.close()
+            if "rgb_array" not in modes:
+                return 0, (f"no `episode.gif`: {task.name} renders no `rgb_array` frames (its "
+                           f"metadata's render_modes: {', '.join(map(str, modes)) or 'none'})")
+            row = SimpleNamespace(method="recommended BT", expert=rec.algo)
+            frames = write_gif(task, rec.chosen.bt, row, target,
+                               SMOKE_GIF_STEPS if rec.budget.smoke else None, GIF_FRAMES)
+    except Exception as err:  # the user's renderer: a GIF is not worth failing the run
+        target.unlink(missing_ok=True)
+        why = " ".join(f"{type(err).__name__}: {err}".split())[:200]
+        return 0, f"no `episode.gif`: rendering {task.name} failed ({why})"
+    return frames, None
 
 
 def lookup_config(cfg: Config) -> Config:
@@ -134,4 +173,4 @@ def _shown(path: Path, cfg: Config) -> str:
     return path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
 
 
-__all__ = ["lookup_config", "write_gif", "write_headline"]
+__all__ = ["lookup_config", "pipeline_episode", "write_gif", "write_headline"]
