@@ -24,7 +24,13 @@ from typing import Any
 import numpy as np
 from sklearn.tree import DecisionTreeRegressor
 
-from ibt.distill.loop import METHODS, Distillation, check_loop_settings, interactive_loop, mix
+from ibt.distill.loop import (
+    METHODS,
+    CommandVectors,
+    Distillation,
+    check_loop_settings,
+    interactive_loop,
+)
 from ibt.experts.expert import Expert
 from ibt.tasks.settings import BOX_MAX_LEAF_NODES
 from ibt.tasks.task import Task
@@ -92,17 +98,11 @@ def box_tree_policy(task: Task, tree: DecisionTreeRegressor):
 
 
 @dataclass(frozen=True)
-class RegressionLearner:
+class RegressionLearner(CommandVectors):
     """A regression tree of action vectors: the interactive loop's learner on a Box task."""
 
     config: BoxDistillConfig
     seed: int
-
-    def label(self, expert: Expert, obs: np.ndarray, weighted: bool
-              ) -> tuple[np.ndarray, np.ndarray]:
-        if weighted:
-            return expert.label(obs)
-        return expert.act(obs), np.ones(len(obs))  # the weights are not used: one pass
 
     def fit(self, x: np.ndarray, y: np.ndarray) -> DecisionTreeRegressor:
         return DecisionTreeRegressor(max_leaf_nodes=self.config.max_leaf_nodes,
@@ -114,12 +114,6 @@ class RegressionLearner:
 
     def predictor(self, tree: DecisionTreeRegressor) -> Callable[[np.ndarray], np.ndarray]:
         return lambda features: tree_actions(tree, features)
-
-    def mix(self, expert_actions: np.ndarray, tree_actions: np.ndarray, beta: float,
-            rng: np.random.Generator) -> np.ndarray:
-        use_expert = mix(np.arange(len(expert_actions)), np.full(len(expert_actions), -1),
-                         beta, rng) >= 0
-        return np.where(use_expert[:, None], expert_actions, tree_actions)
 
 
 def distill_box(task: Task, expert: Expert, config: BoxDistillConfig, seed: int = 0, *,

@@ -32,7 +32,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ibt.bt.linear import MAX_TERMS
-from ibt.distill.loop import METHODS, Distillation, check_loop_settings, interactive_loop, mix
+from ibt.distill.loop import (
+    METHODS,
+    CommandVectors,
+    Distillation,
+    check_loop_settings,
+    interactive_loop,
+)
 from ibt.experts.expert import Expert
 from ibt.tasks.task import Task
 
@@ -47,27 +53,15 @@ def widen(features: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class ControllerArrays:
-    """A controller tree as arrays over ``n`` nodes (node 0 the root; ``left == -1``: a leaf).
-
-    ``split`` ``(n, F)``: each split's weights (zeros at leaves); ``threshold`` ``(n,)``;
-    ``bias`` ``(n, D)`` and ``weights`` ``(n, D, F)``: each leaf's commands (zeros at splits).
-    """
+class SplitTree:
+    """The splits of a controller or oblique tree as arrays over ``n`` nodes (node 0 the root;
+    ``left == -1``: a leaf): ``split`` ``(n, F)`` each split's weights (zeros at leaves),
+    ``threshold`` ``(n,)``. What the leaves hold is the subclass's."""
 
     left: np.ndarray
     right: np.ndarray
     split: np.ndarray
     threshold: np.ndarray
-    bias: np.ndarray
-    weights: np.ndarray
-
-    @property
-    def n_features(self) -> int:
-        return int(self.split.shape[1])
-
-    @property
-    def n_dims(self) -> int:
-        return int(self.bias.shape[1])
 
     @property
     def leaves(self) -> np.ndarray:
@@ -76,6 +70,18 @@ class ControllerArrays:
     @property
     def n_leaves(self) -> int:
         return int((self.left == -1).sum())
+
+    @property
+    def node_count(self) -> int:
+        return len(self.left)
+
+    @property
+    def tree_(self) -> SplitTree:
+        """Itself: the interactive loop reads a tree's size by scikit-learn's names."""
+        return self
+
+    def get_n_leaves(self) -> int:
+        return self.n_leaves
 
     def leaf_of(self, x: np.ndarray) -> np.ndarray:
         """The leaf each widened feature row reaches."""
@@ -88,6 +94,39 @@ class ControllerArrays:
             at = node[rows]
             goes_left = split_value(self.split[at], x[rows]) <= self.threshold[at]
             node[rows] = np.where(goes_left, self.left[at], self.right[at])
+
+    def to_doc(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def digest(self) -> str:
+        """The tree's identity (its document's SHA-256, 16 hex digits)."""
+        import json
+
+        return hashlib.sha256(json.dumps(self.to_doc(), sort_keys=True).encode()
+                              ).hexdigest()[:16]
+
+    def _size(self, command_terms: int) -> dict[str, int]:
+        inner = self.left != -1
+        return {"rules": self.n_leaves, "tests": int(inner.sum()),
+                "test_terms": int((self.split[inner] != 0).sum()),
+                "command_terms": command_terms}
+
+
+@dataclass(frozen=True)
+class ControllerArrays(SplitTree):
+    """A controller tree: :class:`SplitTree`'s splits, and ``bias`` ``(n, D)`` and ``weights``
+    ``(n, D, F)``: each leaf's commands (zeros at splits)."""
+
+    bias: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def n_features(self) -> int:
+        return int(self.split.shape[1])
+
+    @property
+    def n_dims(self) -> int:
+        return int(self.bias.shape[1])
 
     def decide(self, features: np.ndarray) -> np.ndarray:
         """The command vectors ``(n, D)`` in double on feature rows (not clipped)."""
@@ -118,31 +157,9 @@ class ControllerArrays:
                    np.asarray(doc["weights"], dtype=np.float64).reshape(
                        n, bias.shape[1], split.shape[1]))
 
-    @property
-    def node_count(self) -> int:
-        return len(self.left)
-
-    @property
-    def tree_(self) -> ControllerArrays:
-        """Itself: the interactive loop reads a tree's size by scikit-learn's names."""
-        return self
-
-    def get_n_leaves(self) -> int:
-        return self.n_leaves
-
-    def digest(self) -> str:
-        """The tree's identity (its document's SHA-256, 16 hex digits)."""
-        import json
-
-        return hashlib.sha256(json.dumps(self.to_doc(), sort_keys=True).encode()
-                              ).hexdigest()[:16]
-
     def size(self) -> dict[str, int]:
         """Rules (leaves), tests, and terms in tests and commands (how readable it is)."""
-        inner = self.left != -1
-        return {"rules": self.n_leaves, "tests": int(inner.sum()),
-                "test_terms": int((self.split[inner] != 0).sum()),
-                "command_terms": int((self.weights[~inner] != 0).sum())}
+        return self._size(int((self.weights[self.left == -1] != 0).sum()))
 
 
 def split_value(weights: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -342,17 +359,11 @@ class ControllerConfig:
 
 
 @dataclass(frozen=True)
-class ModelTreeLearner:
+class ModelTreeLearner(CommandVectors):
     """The interactive loop's learner for controller trees on a ``Box`` task."""
 
     config: ControllerConfig
     task: Task
-
-    def label(self, expert: Expert, obs: np.ndarray, weighted: bool
-              ) -> tuple[np.ndarray, np.ndarray]:
-        if weighted:
-            return expert.label(obs)
-        return expert.act(obs), np.ones(len(obs))
 
     def fit(self, x: np.ndarray, y: np.ndarray) -> ControllerArrays:
         low, high = np.asarray(self.task.action_low), np.asarray(self.task.action_high)
@@ -365,12 +376,6 @@ class ModelTreeLearner:
     def predictor(self, tree: ControllerArrays) -> Callable[[np.ndarray], np.ndarray]:
         low, high = np.asarray(self.task.action_low), np.asarray(self.task.action_high)
         return lambda features: np.clip(tree.decide(features), low, high).astype(np.float32)
-
-    def mix(self, expert_actions: np.ndarray, tree_actions: np.ndarray, beta: float,
-            rng: np.random.Generator) -> np.ndarray:
-        use_expert = mix(np.arange(len(expert_actions)), np.full(len(expert_actions), -1),
-                         beta, rng) >= 0
-        return np.where(use_expert[:, None], expert_actions, tree_actions)
 
 
 def distill_controller(task: Task, expert: Expert, config: ControllerConfig, seed: int = 0, *,

@@ -205,6 +205,24 @@ class Learner(Protocol):
         ...
 
 
+class CommandVectors:
+    """How a learner of ``Box`` actions labels and mixes (the regression and controller
+    learners): the expert's command vectors (weighted by its critic where the method weighs,
+    else one pass of ``act``), and per row the expert's whole vector or the tree's."""
+
+    def label(self, expert: Expert, obs: np.ndarray, weighted: bool
+              ) -> tuple[np.ndarray, np.ndarray]:
+        if weighted:
+            return expert.label(obs)
+        return expert.act(obs), np.ones(len(obs))  # the weights are not used: one pass
+
+    def mix(self, expert_actions: np.ndarray, tree_actions: np.ndarray, beta: float,
+            rng: np.random.Generator) -> np.ndarray:
+        use_expert = mix(np.arange(len(expert_actions)), np.full(len(expert_actions), -1),
+                         beta, rng) >= 0
+        return np.where(use_expert[:, None], expert_actions, tree_actions)
+
+
 @dataclass(frozen=True)
 class ClassifierLearner:
     """A classification tree: scikit-learn's CART, or the relational learner of

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ibt.bt.linear import MAX_TERMS
-from ibt.distill.controller import ControllerConfig, split_value, widen
+from ibt.distill.controller import ControllerConfig, SplitTree, split_value, widen
 from ibt.distill.loop import Distillation, interactive_loop, mix
 from ibt.experts.expert import Expert
 from ibt.tasks.task import Task
@@ -34,47 +34,11 @@ RELEVANT = 0.05  #: features weighing less than this share of the largest are le
 
 
 @dataclass(frozen=True)
-class ObliqueArrays:
-    """An oblique tree as arrays over ``n`` nodes (node 0 the root; ``left == -1``: a leaf):
-    ``split`` ``(n, F)`` each split's weights, ``threshold`` ``(n,)``, ``action`` ``(n,)`` each
-    leaf's action (-1 at splits)."""
+class ObliqueArrays(SplitTree):
+    """An oblique tree: :class:`ibt.distill.controller.SplitTree`'s splits, and ``action``
+    ``(n,)`` each leaf's action (-1 at splits)."""
 
-    left: np.ndarray
-    right: np.ndarray
-    split: np.ndarray
-    threshold: np.ndarray
     action: np.ndarray
-
-    @property
-    def n_leaves(self) -> int:
-        return int((self.left == -1).sum())
-
-    @property
-    def leaves(self) -> np.ndarray:
-        return np.flatnonzero(self.left == -1)
-
-    @property
-    def node_count(self) -> int:
-        return len(self.left)
-
-    @property
-    def tree_(self) -> ObliqueArrays:
-        """Itself: the interactive loop reads a tree's size by scikit-learn's names."""
-        return self
-
-    def get_n_leaves(self) -> int:
-        return self.n_leaves
-
-    def leaf_of(self, x: np.ndarray) -> np.ndarray:
-        node = np.zeros(len(x), dtype=np.int64)
-        while True:
-            inner = self.left[node] != -1
-            if not inner.any():
-                return node
-            rows = np.flatnonzero(inner)
-            at = node[rows]
-            goes_left = split_value(self.split[at], x[rows]) <= self.threshold[at]
-            node[rows] = np.where(goes_left, self.left[at], self.right[at])
 
     def decide(self, features: np.ndarray) -> np.ndarray:
         return self.action[self.leaf_of(widen(features))]
@@ -95,17 +59,8 @@ class ObliqueArrays:
                    np.asarray(doc["split"], np.float64).reshape(n, -1),
                    np.asarray(doc["threshold"], np.float64), np.asarray(doc["action"], np.int64))
 
-    def digest(self) -> str:
-        import hashlib
-        import json
-
-        return hashlib.sha256(json.dumps(self.to_doc(), sort_keys=True).encode()
-                              ).hexdigest()[:16]
-
     def size(self) -> dict[str, int]:
-        inner = self.left != -1
-        return {"rules": self.n_leaves, "tests": int(inner.sum()),
-                "test_terms": int((self.split[inner] != 0).sum()), "command_terms": 0}
+        return self._size(0)
 
 
 def _gini_cut(z: np.ndarray, y: np.ndarray, n_classes: int, min_leaf: int

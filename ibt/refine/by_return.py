@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Generic, Protocol, Self, TypeVar
 
 import numpy as np
@@ -89,6 +89,22 @@ class RefinementRecord(Generic[Candidate]):
     @property
     def best(self) -> Candidate:
         return self.candidates[self.best_index]
+
+    def to_doc(self) -> dict[str, Any]:
+        """Plain JSON data (a ``json`` cache payload), for candidates that have ``to_doc``."""
+        doc = {f.name: getattr(self, f.name) for f in fields(self)}
+        return {**doc, "candidates": [c.to_doc() for c in self.candidates]}  # type: ignore[attr-defined]
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> Self:
+        """The record of :meth:`to_doc`'s document (:meth:`candidate_from_doc` reads each
+        candidate)."""
+        return cls(**{**doc, "candidates": [cls.candidate_from_doc(c)
+                                            for c in doc["candidates"]]})
+
+    @staticmethod
+    def candidate_from_doc(doc: dict[str, Any]) -> Candidate:
+        raise NotImplementedError
 
 
 @dataclass

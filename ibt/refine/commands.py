@@ -147,18 +147,9 @@ def _cma_stage(arrays: CommandArrays, task: Task, spread: np.ndarray, config: Re
 class CommandRefinement(RefinementRecord[CommandArrays]):
     """A command-tree refinement's record: each stage's result and the chosen tree."""
 
-    def to_doc(self) -> dict[str, Any]:
-        """Plain JSON data (a ``json`` cache payload)."""
-        return {"task": self.task, "seed": self.seed, "config": self.config,
-                "stages": self.stages, "candidates": [c.to_doc() for c in self.candidates],
-                "best_index": self.best_index, "selection_means": self.selection_means,
-                "episodes": self.episodes, "steps": self.steps,
-                "wall_seconds": self.wall_seconds, "cpu_seconds": self.cpu_seconds}
-
-    @classmethod
-    def from_doc(cls, doc: dict[str, Any]) -> CommandRefinement:
-        return cls(**{**doc, "candidates": [CommandArrays.from_doc(c)
-                                            for c in doc["candidates"]]})
+    @staticmethod
+    def candidate_from_doc(doc: dict[str, Any]) -> CommandArrays:
+        return CommandArrays.from_doc(doc)
 
 
 def refine_commands(tree: Any, task: Task, config: RefineConfig, seed: int = 0, *,

@@ -92,16 +92,9 @@ class ControllerPopulation:
 class ControllerRefinement(RefinementRecord[Any]):
     """A controller refinement's record: each stage's result and the chosen tree."""
 
-    def to_doc(self) -> dict[str, Any]:
-        return {"task": self.task, "seed": self.seed, "config": self.config,
-                "stages": self.stages, "candidates": [c.to_doc() for c in self.candidates],
-                "best_index": self.best_index, "selection_means": self.selection_means,
-                "episodes": self.episodes, "steps": self.steps,
-                "wall_seconds": self.wall_seconds, "cpu_seconds": self.cpu_seconds}
-
-    @classmethod
-    def from_doc(cls, doc: dict[str, Any]) -> ControllerRefinement:
-        return cls(**{**doc, "candidates": [tree_from_doc(c) for c in doc["candidates"]]})
+    @staticmethod
+    def candidate_from_doc(doc: dict[str, Any]) -> Tree:
+        return tree_from_doc(doc)
 
 
 def tree_from_doc(doc: dict[str, Any]) -> Tree:
