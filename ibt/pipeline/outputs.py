@@ -1,6 +1,7 @@
 """The files of ``python -m ibt pipeline``: ``bt.json``, ``bt.xml``, ``bt.png``, ``bt.svg``,
-``front.png`` and ``report.md`` (:func:`write_outputs`), written as one set into a folder the
-pipeline owns (:mod:`ibt.pipeline.owned_folder`)."""
+``front.png``, ``plan.json`` (the steps the run took, :mod:`ibt.engine.plan`) and ``report.md``
+(:func:`write_outputs`), written as one set into a folder the pipeline owns
+(:mod:`ibt.pipeline.owned_folder`)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from ibt.pipeline.owned_folder import OwnedFolder, claim, write_set
 from ibt.pipeline.recommend import Recommendation
 
 #: the set a run writes; report.md last (it says what the others are)
-OUTPUTS = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
+OUTPUTS = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "plan.json", "report.md")
 
 
 # ---------------------------------------------------------------------------- the BT as rules
@@ -134,19 +135,81 @@ def _interval(returns: list[float]) -> str:
     return f"[{low:.2f}, {high:.2f}] ({interval_label('ci', len(returns), 'episode')})"
 
 
+def rerun(rec: Recommendation, out: Path, *, plan: bool = False) -> str:
+    """The run's command again: under the clock (its ``--time``, a replay's ``--plan``
+    dropped), or with ``plan`` replaying the plan it wrote (its ``--time`` dropped)."""
+    task = rec.task.name
+    if rec.argv:
+        argv = _without(rec.argv, "--plan")
+        argv = _without(argv, "--time") if plan else argv
+    else:
+        argv = ["pipeline", task, rec.algo, "--checkpoint", str(rec.checkpoint), "-o", str(out),
+                "--keep", str(rec.keep), "--budget", rec.budget.text, "--seed", str(rec.seed)]
+    return "python -m ibt " + shlex.join([*argv, *(["--plan", str(out / "plan.json")]
+                                                    if plan else [])])
+
+
+def _without(argv: list[str], option: str) -> list[str]:
+    """``argv`` without ``option`` and its value (``--time 5m``, ``--time=5m``, or an
+    abbreviation argparse takes, ``--ti 5m``)."""
+    kept: list[str] = []
+    skip = False
+    for arg in argv:
+        name = arg.split("=", 1)[0]
+        if skip:
+            skip = False
+        elif arg.startswith("--") and len(name) > 2 and option.startswith(name):
+            skip = "=" not in arg
+        else:
+            kept.append(arg)
+    return kept
+
+
 def commands(rec: Recommendation, out: Path) -> list[str]:
-    """Commands that reproduce the run and check its BT."""
+    """Commands that reproduce the run (its plan replayed, then the ladder anytime) and check
+    its BT."""
     task, q = rec.task.name, shlex.quote
-    again = "python -m ibt " + shlex.join(rec.argv) if rec.argv else (
-        f"python -m ibt pipeline {task} {rec.algo} --checkpoint {q(str(rec.checkpoint))} "
-        f"-o {q(str(out))} --keep {rec.keep} --budget {rec.budget.text} --seed {rec.seed}")
     env = list(dict.fromkeys([*rec.env_modules, *filter(None, [rec.task.setup_module])]))
     module = "".join(f" --env-module {q(m)}" for m in env)
     bt = q(str(out / "bt.json"))
-    return [again,
+    return [rerun(rec, out, plan=True) + "  # the same steps, whatever the time",
+            rerun(rec, out) + "  # rerun anytime: the steps the time allows",
             f"python -m ibt evaluate {bt} --task {task}{module} --episodes {rec.episodes}"
             "  # the choice episodes",
             f"python -m ibt run-btcpp {q(str(out / 'bt.xml'))} --task {task}{module}"]
+
+
+def plan_document(rec: Recommendation) -> dict[str, Any]:
+    """``plan.json``: the steps the run took and where it stopped (:mod:`ibt.engine.plan`)."""
+    from ibt.engine.plan import document, made_for
+
+    settings = {"keep": rec.keep, "budget": rec.budget.text, "leaves": list(rec.leaf_limits),
+                "seed": rec.seed, "restarts": rec.restarts, "episodes": rec.episodes,
+                "max_nodes": rec.max_nodes}
+    return document(made_for(rec.task.name, rec.algo, rec.checkpoint_sha256, settings),
+                    rec.ladder.plan)
+
+
+def reproduce_text(rec: Recommendation, out: Path) -> list[str]:
+    """The report's ``## Reproduce`` section: what the run was given, its plan, the commands."""
+    from ibt.engine.plan import summary
+
+    replayed = (f"This run replayed the plan `{rec.replayed}` (`--plan`: no time budget). "
+                if rec.replayed else "")
+    return [
+        "## Reproduce", "",
+        f"{'Agent' if rec.algo == 'callable' else 'Checkpoint'} `{rec.checkpoint}` "
+        f"(SHA-256 prefix {rec.checkpoint_sha256}), seed "
+        f"{rec.seed}, budget {rec.budget.text}, leaf limits "
+        f"{', '.join(map(str, rec.leaf_limits))}.", "",
+        f"{replayed}The steps a run takes under `--time` depend on the clock (the machine's "
+        f"speed and load); `plan.json` records those this run took, in order, and where it "
+        f"stopped: {summary(rec.ladder.plan)}. Replayed with `--plan` (the first command), "
+        "every step of the plan runs and nothing else, whatever the time or the number of "
+        "`--jobs`: the same files on any machine (each step is cached, so here it repeats "
+        "nothing). The second command climbs the ladder again under the clock, as far as the "
+        "time allows.", "",
+        *fenced("\n".join(commands(rec, out)), "bash"), ""]
 
 
 def next_step(rec: Recommendation) -> str:
@@ -318,13 +381,7 @@ def report_text(rec: Recommendation, out: Path) -> str:
         "`bt.json` (this package's BT format), `bt.xml` (BehaviorTree.CPP v4, portable "
         f"flavour), `bt.png`/`bt.svg` (drawing), `front.png`, this report; `{cache}` holds "
         "every step, so a rerun with a larger budget repeats only what changed.", "",
-        "## Reproduce", "",
-        f"{'Agent' if rec.algo == 'callable' else 'Checkpoint'} `{rec.checkpoint}` "
-        f"(SHA-256 prefix {rec.checkpoint_sha256}), seed "
-        f"{rec.seed}, budget {rec.budget.text}, leaf limits "
-        f"{', '.join(map(str, rec.leaf_limits))}; the same command on the same machine gives "
-        "the same files.", "",
-        *fenced("\n".join(commands(rec, out)), "bash"), ""]
+        *reproduce_text(rec, out)]
     return "\n".join(lines)
 
 
@@ -353,7 +410,7 @@ def incomplete_text(rec: Recommendation, out: Path) -> str:
     return (f"# Incomplete: {out} was being rewritten\n\n`python -m ibt pipeline` stopped while "
             "it renamed its new files into place, so this folder may mix files of two runs. "
             "Rerun it (every finished step is cached):\n\n"
-            + "\n".join(fenced(commands(rec, out)[0], "bash")) + "\n")
+            + "\n".join(fenced(rerun(rec, out), "bash")) + "\n")
 
 
 def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Path]:
@@ -365,6 +422,7 @@ def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Pa
     before any work), or a path, claimed here (:class:`FolderError` if it holds files the
     pipeline did not write)."""
     from ibt.bt.json_io import save_json
+    from ibt.engine.plan import dumps
     from ibt.export.btcpp import to_btcpp_xml
     from ibt.export.pictures import draw_bt
     from ibt.files import atomic_write_text
@@ -380,6 +438,7 @@ def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder) -> list[Pa
         atomic_write_text(tmp / "bt.xml", to_btcpp_xml(bt))
         draw_bt(bt, tmp / "bt", title=f"{rec.task.name}: {bt.node_count}-node BT")
         draw_front(rec, tmp / "front.png")
+        atomic_write_text(tmp / "plan.json", dumps(plan_document(rec)))
         atomic_write_text(tmp / "report.md", report)
 
     return write_set(folder, OUTPUTS, write, incomplete_text(rec, path))
