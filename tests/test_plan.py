@@ -112,14 +112,14 @@ def test_the_plan_round_trips_as_json_and_bad_plans_name_the_fix():
     bad(lambda d: d["entries"][1].update(seeds=[3, 4]), "a search's seeds are its restarts")
     bad(lambda d: d["entries"].append([1]), "must be a step")
     bad(lambda d: d["settings"].update(seed="0"), "malformed")
-    with pytest.raises(PlanError, match="not strict JSON.*pass the plan.json"):
+    with pytest.raises(PlanError, match=r"not strict JSON.*pass the plan\.json"):
         read_plan(b"{\"format\": ", "p.json")
     with pytest.raises(PlanError, match="a plan for ToyLine-v0/ppo, not CartPole-v1/ppo"):
         check_made_for(FOR, {**FOR, "task": "CartPole-v1"}, "p.json")
     with pytest.raises(PlanError, match="another agent"):
         check_made_for(FOR, {**FOR, "agent_sha256": "cd" * 32}, "p.json")
-    with pytest.raises(PlanError, match="made with --keep 0.95, this run has 0.9: pass --keep "
-                                        "0.95"):
+    with pytest.raises(PlanError, match=r"made with --keep 0\.95, this run has 0\.9: pass --keep "
+                                        r"0\.95"):
         check_made_for(FOR, {**FOR, "settings": {**SETTINGS, "keep": 0.9}}, "p.json")
     with pytest.raises(PlanError, match=r"this run has 7: drop --max-nodes"):
         check_made_for(FOR, {**FOR, "settings": {**SETTINGS, "max_nodes": 7}}, "p.json")
@@ -145,3 +145,43 @@ def test_bad_plan_input_exits_2_in_one_line(agents, tmp_path, capsys):
     assert main([*argv, "--plan", str(plan), "--time", "1m"]) == 2
     assert "--time: not allowed with argument --plan" in capsys.readouterr().err
     assert not out.exists() or not (out / "bt.json").exists()
+
+
+def _cache_entries(cache):
+    return sorted(str(m.parent.relative_to(cache)) for m in cache.glob("*/*/manifest.json"))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
+def test_a_timed_runs_plan_replayed_on_one_or_two_cores_writes_the_same_bt(agents, tmp_path):
+    """End to end, files included: a run under a time limit whose last search spends spare time
+    on restarts, then polishes again; its ``plan.json`` read back and replayed from the run's
+    cache on one core (no step redone) and from an empty cache on two: ``bt.json`` byte for
+    byte, and the same plan. (A target above the agent, 1.01, keeps the search going: the
+    command line's ``--keep`` stops at 1.)"""
+    from ibt.pipeline.outputs import write_outputs
+    from ibt.pipeline.recommend import parse_budget, recommend
+
+    agent = _line_agent(agents)
+    run = dict(budget=parse_budget("smoke"), keep=1.01, leaf_limits=(4,), restarts=1,
+               progress=False, env_modules=("tests.fixtures.toy_line",))  # for the workers
+    first = tmp_path / "first"
+    rec = recommend(agent, cache_dir=tmp_path / "c1", time_limit=600.0, n_jobs=1, **run)
+    write_outputs(rec, first)
+    doc = json.loads((first / "plan.json").read_text())
+    kinds = [e.get("kind") for e in doc["entries"]]
+    assert kinds[:2] == ["distil", "search"] and "polish" in kinds, kinds
+    assert len(doc["entries"][1]["seeds"]) > 1  # the spare time's restarts
+    cached = _cache_entries(tmp_path / "c1")
+    for folder, jobs, cache in (("one", 1, tmp_path / "c1"), ("two", 2, tmp_path / "c2")):
+        planned, entries = read_plan((first / "plan.json").read_bytes(), "plan.json")
+        assert planned == {k: doc[k] for k in ("task", "algo", "agent_sha256", "settings")}
+        again = recommend(agent, cache_dir=cache, time_limit=1.0, n_jobs=jobs,
+                          replay=Replay(entries, "plan.json"), **run)  # no clock: 1 s unused
+        write_outputs(again, tmp_path / folder)
+        assert (tmp_path / folder / "bt.json").read_bytes() == (first / "bt.json").read_bytes()
+        assert (tmp_path / folder / "plan.json").read_bytes() == (first / "plan.json"
+                                                                  ).read_bytes()
+        assert "This run replayed the plan `plan.json`" in (tmp_path / folder / "report.md"
+                                                            ).read_text()
+    assert _cache_entries(tmp_path / "c1") == cached  # the replay from it redid no step

@@ -122,7 +122,12 @@ def document(made_for: dict[str, Any], entries: list[Entry]) -> dict[str, Any]:
 
 
 def dumps(doc: dict[str, Any]) -> str:
-    return json.dumps(doc, indent=1, allow_nan=False) + "\n"
+    """The plan as JSON text, one line an entry."""
+    head = json.dumps({k: v for k, v in doc.items() if k != "entries"}, indent=1,
+                      allow_nan=False)
+    rows = ",\n  ".join(json.dumps(e, allow_nan=False) for e in doc["entries"])
+    return head[:-2] + (f',\n "entries": [\n  {rows}\n ]\n}}\n' if rows else
+                        ',\n "entries": []\n}\n')
 
 
 def made_for(task: str, algo: str, agent_sha256: str, settings: dict[str, Any]
@@ -174,7 +179,7 @@ def summary(entries: list[Entry]) -> str:
             parts.append(f"{len(mine)} {kind} step{'s' if len(mine) > 1 else ''}")
     stops = [f"stopped ({e.reason})" + (f" at \"{e.at}\"" if e.at else "")
              for e in entries if isinstance(e, PlannedStop)]
-    return "; ".join([", ".join(parts) or "no step", *stops])
+    return "; ".join([", ".join(parts) or "no step", *(stops or ["the ladder finished"])])
 
 
 # ------------------------------------------------------------------------------ reading

@@ -232,7 +232,8 @@ def ladder_text(rec: Recommendation) -> list[str]:
     """How the ladder went: a stop's mark, the steps done and left, and each search's choice
     among its restarts."""
     ladder = rec.ladder
-    how = {"time": f"the time budget ({rec.time_limit:.0f} s) ended it",
+    budget = f" ({rec.time_limit:.0f} s)" if rec.time_limit is not None else ""  # a replay's
+    how = {"time": f"the time budget{budget} ended it",
            "interrupted": "Ctrl-C stopped it", "terminated": "SIGTERM stopped it"}
     lines = ["## How the search went", ""]
     if ladder.stopped:
