@@ -3,7 +3,7 @@
 * :mod:`ibt.pipeline.recommend`: the wall-clock budget, the anytime ladder of the engine
   (:mod:`ibt.engine.ladder`) run on the agent, and the recommendation rule (the smallest
   verified BT that keeps the target on the choice episodes, confirmed on fresh ones);
-* :mod:`ibt.pipeline.outputs`: its six files (BT JSON and BehaviorTree.CPP XML, picture, front,
+* :mod:`ibt.pipeline.outputs`: its files (BT JSON and BehaviorTree.CPP XML, picture, front, plan,
   rules, report), written as one set;
 * :mod:`ibt.pipeline.owned_folder`: the output folder the run owns, claimed, written atomically
   and released, safe against concurrent runs and signals.
