@@ -45,6 +45,11 @@ a step that would not fit, polishes again the searched BT nearest the target amo
 smaller than every BT that keeps it (:mod:`ibt.engine.polish`). Ctrl-C or SIGTERM inside a
 step ends that step unfinished (nothing of it is cached) and the ladder returns what it has,
 marked as stopped. A rerun with a longer deadline resumes from the cache.
+
+What the clock decided is recorded: the ladder's ``plan`` lists every step done (with a
+search's restarts and a polish's seeds) and every stop, in order. Given that plan to replay
+(:mod:`ibt.engine.plan`) and no deadline, it runs every planned step and nothing else, so the
+same candidates come out on any machine and any number of cores.
 """
 
 from __future__ import annotations
