@@ -226,7 +226,7 @@ def test_refused_before_any_work_and_the_users_files_intact(case, refused):
 
 
 # ------------------------------------------------------------------ the write phase, killed
-FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
+FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "plan.json", "report.md")
 
 
 def _set(folder: Path) -> dict[str, str]:

@@ -23,6 +23,7 @@ from ibt.engine.plan import (
     dumps,
     made_for,
     read_plan,
+    summary,
 )
 from tests.test_pipeline_engine import _line_agent
 
@@ -96,6 +97,9 @@ def test_the_plan_round_trips_as_json_and_bad_plans_name_the_fix():
     doc = json.loads(text)
     assert doc["ended"] == "time" and doc["settings"] == SETTINGS
     assert read_plan(text.encode(), "p.json") == (FOR, entries)
+    assert summary(entries) == ("1 distil step, a search at 4 leaves (2 restarts); stopped "
+                                "(time) at \"polish again axis at 4 leaves\"")
+    assert summary(entries[:1]) == "1 distil step; the ladder finished"
 
     def bad(change, match):
         changed = json.loads(text)

@@ -18,7 +18,7 @@ from ibt.engine.agent import sb3_agent
 from ibt.pipeline.recommend import Budget, Candidate, choose, held_out, parse_budget
 
 pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
-FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
+FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "plan.json", "report.md")
 
 
 def _run(argv: list[str]) -> int:

@@ -195,7 +195,8 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     pace = Pace(agent_length)  # the run's tree measurements: seconds a step, steps an episode
     running: list[str] = []  # the step under way (what a signal cuts short)
 
-    def stop(reason: str, name: str) -> Stopped:
+    def halt(reason: str, name: str) -> Stopped:
+        """The stop before the step ``name``, recorded in the plan."""
         out.plan.append(PlannedStop(reason, name))
         return Stopped(reason)
 
@@ -209,13 +210,13 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
             out.plan += [planned] if planned is not None else []  # a recorded stop
             raise Stopped(END)
         if deadline.passed():
-            raise stop("time", name)
+            raise halt("time", name)
         kind = name.split()[0]
         left = deadline.left()
         if kind in took and took[kind] > left:
             out.notes.append(f"the ladder stopped before \"{name}\": the longest {kind} step "
                              f"took {took[kind]:.0f} s and {left:.0f} s of the budget were left")
-            raise stop("time", name)
+            raise halt("time", name)
         gated = bool(episodes) and kind not in took and deadline.seconds is not None
         if gated and not pace.steps and out.candidates:  # every measurement read from the cache
             last = out.candidates[-1]
@@ -227,10 +228,10 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
                              f"budget and its grace (at least {least:.0f} s expected: "
                              f"{pace.said(episodes)}; {left:.0f} s were left and "
                              f"{deadline.grace():.0f} s of grace)")
-            raise stop("time", name)
+            raise halt("time", name)
         reason = on_step(out, name) if on_step is not None else None
         if reason:
-            raise stop(reason, name)
+            raise halt(reason, name)
         began, running[:] = deadline.clock(), [name]
         with time_cap(deadline.left() + deadline.grace()):
             made = make()

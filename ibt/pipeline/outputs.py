@@ -244,7 +244,9 @@ def ladder_text(rec: Recommendation) -> list[str]:
                   "on the machine's speed; a rerun with a longer `--time` resumes from the "
                   "cache and, once the ladder finishes, gives the same files.", ""]
     else:
-        lines += ["The ladder finished within its time budget: trees distilled at each leaf "
+        how_far = ("replayed its plan, every step in order (no time budget)"
+                   if getattr(rec, "replayed", None) else "finished within its time budget")
+        lines += [f"The ladder {how_far}: trees distilled at each leaf "
                   "limit, smallest first (axis-aligned, then relational), up to the first limit "
                   "whose best BT kept the target; the structure search by return below it (at "
                   "every limit when none kept the target) in the order of a binary search for "
