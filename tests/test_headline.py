@@ -97,3 +97,19 @@ def test_smoke_reads_the_committed_cache_under_the_paper_budgets(tmp_path):
     assert (lookup.figures_dir, lookup.data_dir) == (tmp_path, tmp_path)  # outputs: scratch
     paper = replace(smoke, profile="paper")
     assert files.lookup_config(paper) is paper  # the paper profile reads its own cache
+
+
+def test_a_bt_the_headline_no_longer_lists_is_retired_and_nothing_else(tmp_path):
+    """Only folders the last headline listed lose their files, and only the files the
+    headline writes; a user's file keeps its folder, an unlisted folder is untouched."""
+    for name in ("kept", "old", "mixed", "users"):
+        (tmp_path / name).mkdir()
+        for file in files.HEADLINE_FILES:
+            (tmp_path / name / file).write_text("x")
+    (tmp_path / "mixed" / "notes.txt").write_text("mine")
+    gone = files.retire(tmp_path, ["kept", "old", "mixed", "../users", "missing"], ["kept"])
+    assert gone == ["mixed", "old"]
+    assert not (tmp_path / "old").exists()
+    assert sorted(p.name for p in (tmp_path / "mixed").iterdir()) == ["notes.txt"]
+    assert len(list((tmp_path / "kept").iterdir())) == len(files.HEADLINE_FILES)
+    assert len(list((tmp_path / "users").iterdir())) == len(files.HEADLINE_FILES)

@@ -227,7 +227,7 @@ def test_refused_before_any_work_and_the_users_files_intact(case, refused):
 
 # ------------------------------------------------------------------ the write phase, killed
 FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "faithful_bt.json", "faithful_bt.xml",
-         "front.png", "episode.gif", "report.md")  # CartPole renders: every output is made
+         "front.png", "episode.gif", "plan.json", "report.md")  # CartPole renders: every output
 
 
 def _set(folder: Path) -> dict[str, str]:

@@ -84,8 +84,7 @@ def _stump_refine(cfg: Any, agent: Any, tree: Any, seed: int, scale: float,
 
 
 STUMP = Learner("stump", DISCRETE, LEARNER_DISTIL, "distillation", _stump_settings,
-                loop_fit(Stumps), lambda cfg, agent, run, seed: run.best_tree, _stump_refine,
-                sources=("distill/loop.py",))
+                loop_fit(Stumps), lambda cfg, agent, run, seed: run.best_tree, _stump_refine)
 
 
 def test_a_learner_registered_outside_the_engine_is_tried_by_the_ladder(agents, tmp_path,
@@ -116,20 +115,20 @@ def test_a_learner_registered_outside_the_engine_is_tried_by_the_ladder(agents, 
     assert (params["learner"], params["learner_version"]) == ("stump", 1)
 
 
-def test_a_built_in_learner_of_the_shared_kind_is_guarded_by_its_sources(monkeypatch):
-    """The code guard records such a learner's version and sources, and names a change to
-    its sources without a bump."""
+def test_a_built_in_learner_module_is_among_the_shared_kinds_sources(tmp_path, monkeypatch):
+    """A new ``engine/learner_<name>.py`` changes the digest of both shared kinds (the code
+    guard then asks for a decision) and no other kind's."""
+    import shutil
+
     from ibt.cache import guard
 
-    monkeypatch.setattr(learners, "LEARNERS", dict(LEARNERS))
-    learners.register_learner(STUMP)
-    record = guard.current()
-    assert record["learner:stump"]["version"] == 1
-    assert not any(k.startswith("learner:") for k in record if k != "learner:stump")
-    changed = {**record, "learner:stump": {**record["learner:stump"], "sources": "0" * 64}}
-    assert guard.differences(changed) == [
-        "learner:stump: its sources changed but the learner's version (its entry's version=) "
-        "did not; bump it if the change can change a result, else record it with --write"]
+    package = tmp_path / "ibt"
+    shutil.copytree(guard.PACKAGE, package, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(guard, "PACKAGE", package)
+    before = guard.current()
+    (package / "engine" / "learner_stump.py").write_text("STUMP = 1\n")
+    changed = {k for k, v in guard.current().items() if v != before[k]}
+    assert changed == {"learner-distil", "learner-refine"}
 
 
 @pytest.mark.parametrize(("module", "cls", "learner"), [

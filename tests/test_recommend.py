@@ -18,7 +18,7 @@ from ibt.engine.agent import sb3_agent
 from ibt.pipeline.recommend import Budget, Candidate, choose, held_out, parse_budget
 
 pytestmark = pytest.mark.skipif(shutil.which("dot") is None, reason="needs graphviz's dot")
-FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "report.md")
+FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "front.png", "plan.json", "report.md")
 
 
 def _run(argv: list[str]) -> int:
@@ -46,14 +46,20 @@ def test_pipeline_writes_its_files_and_a_report_that_reproduces_it(agents, tmp_p
     bt = load_json(out / "bt.json")
     assert (out / "bt.xml").read_text() == to_btcpp_xml(bt)
     assert f"**{bt.node_count}-node BT**" in report
-    # the first command of the report, run from scratch (no cache), writes the same BT
-    command = report.split("```bash\n")[1].split("\n")[0]
-    assert command.startswith("python -m ibt pipeline ")
+    # the first command of the report (the run's plan replayed), run from scratch (no cache),
+    # writes the same BT; the second (the same run under the clock) the same report
+    plan, anytime = report.split("```bash\n")[1].split("\n")[:2]
+    assert plan.startswith("python -m ibt pipeline ") and "--plan" in plan
     first = (out / "bt.json").read_bytes()
-    shutil.rmtree(out)
-    assert _run(shlex.split(command)[3:]) == 0
+    shutil.rmtree(out / "cache")
+    assert _run(shlex.split(plan, comments=True)[3:]) == 0
     assert (out / "bt.json").read_bytes() == first
-    assert (out / "report.md").read_text() == report
+    assert _run(shlex.split(anytime, comments=True)[3:]) == 0
+    assert (out / "bt.json").read_bytes() == first
+    untimed = [line for line in report.splitlines()  # but how long a step took (wall time)
+               if not (line.startswith("Note: ") and " took " in line)]
+    assert [line for line in (out / "report.md").read_text().splitlines()
+            if not (line.startswith("Note: ") and " took " in line)] == untimed
 
 
 def test_a_two_feature_task_of_a_users_module_reads_its_names(agents, tmp_path):

@@ -1,7 +1,7 @@
 """A rerun resumes: the same ``python -m ibt pipeline ... -o OUT`` command run again into the
 folder it made reads every step from the cache there, after a run that finished, failed, was
 stopped by Ctrl-C, SIGTERM or SIGKILL, or ran out of ``--time``; and the commands a
-``report.md`` prints under "Reproduce" run verbatim.
+``report.md`` prints under "Reproduce" run verbatim (the first replays the run's plan).
 
 The real command line runs in subprocesses (CartPole, ``--budget smoke``, one leaf limit). The
 plain twice-run case is the fast one (two runs, the second from the cache); the others are
@@ -57,16 +57,22 @@ def test_the_same_command_twice_resumes_and_the_reports_commands_run_verbatim(tm
     assert marker["cache"] == "cache"  # the run's own cache, recorded by its marker
     files, entries, report = _set(out), _entries(out / "cache"), _untimed(out / "report.md")
     assert entries
+    plan = (out / "plan.json").read_bytes()
     commands = _reproduce(out / "report.md")
-    assert commands[0].startswith("python -m ibt pipeline") and len(commands) == 3
-    for command in commands:  # the rerun first: the same command, from the report
+    assert len(commands) == 4 and all(c.startswith("python -m ibt pipeline")
+                                      for c in commands[:2])
+    assert "--plan" in commands[0] and "--time" not in commands[0]
+    for command in commands:  # the reruns first: the plan replayed, then the same command
         ran = _shell(command, ROOT)
         assert ran.returncode == 0, (command, ran.stderr)
+        if command is commands[0]:  # the plan's steps, from the cache: the same set
+            assert {n: h for n, h in _set(out).items() if n != "report.md"} == {
+                n: h for n, h in files.items() if n != "report.md"}
     assert _entries(out / "cache") == entries  # every step read from the cache, none redone
     again = _set(out)
     assert {n: again[n] for n in FILES if n != "report.md"} == {
         n: files[n] for n in FILES if n != "report.md"}  # the same BT, drawings and front
-    assert _untimed(out / "report.md") == report
+    assert _untimed(out / "report.md") == report and (out / "plan.json").read_bytes() == plan
 
 
 def _untimed(report: Path) -> list[str]:

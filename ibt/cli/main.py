@@ -224,12 +224,18 @@ def build_parser() -> argparse.ArgumentParser:
     add_agent_options(pl, "SB3 checkpoint (default: the committed expert)")
     pl.add_argument("--keep", type=keep_arg, default=0.95,
                     help="target share of the agent's random-normalised return (default 0.95)")
-    pl.add_argument("--time", type=duration_arg, default="10m", metavar="DURATION",
+    clock = pl.add_mutually_exclusive_group()
+    clock.add_argument("--time", type=duration_arg, default="10m", metavar="DURATION",
                     help="wall-clock budget such as 90s, 10m, 1h30m; the best BT found by then "
                     "is recommended (default 10m); a step under way may finish within a tenth of "
                     "the budget (at least 1m) past it, else it is cut, and a first search sure "
                     "to be cut is not started; time left over polishes again the searched BT "
                     "nearest the target; a rerun with more time resumes from the cache")
+    clock.add_argument("--plan", metavar="PLAN.JSON",
+                       help="replay the steps a run took, its plan.json (no --time: every "
+                       "planned step runs and nothing else), for the same BT on any machine; "
+                       "give the options of the run that made it (the report's Reproduce "
+                       "section prints the command)")
     pl.add_argument("--max-nodes", type=MAX_NODES, default=None, metavar="N",
                     help="recommend only BTs of at most N nodes")
     pl.add_argument("--restarts", type=RESTARTS, default=3, metavar="K",

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import argparse
 import os
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ibt.cli.checks import (
     EXIT_INTERRUPTED,
@@ -20,9 +21,13 @@ from ibt.cli.checks import (
     check_not_input,
     check_output_folder,
     one_line_warnings,
+    read_input,
     same_path,
     task_for,
 )
+
+if TYPE_CHECKING:
+    from ibt.tasks.task import Task
 
 
 def pipeline_command(args: argparse.Namespace) -> int:
@@ -50,6 +55,7 @@ def pipeline_command(args: argparse.Namespace) -> int:
         check_input(checkpoint, "SB3 checkpoint", "pass your agent's zip with --checkpoint")
         check_not_input([out / name for name in OUTPUTS], checkpoint)
         agent = sb3_agent(task, args.algo, checkpoint)  # its kind and spaces, loaded once
+    replay = plan_replay(args, task, agent.digest, cache)
     try:
         folder = claim(out, OUTPUTS, force=args.force, cache=cache)
     except FolderError as err:
@@ -68,7 +74,7 @@ def pipeline_command(args: argparse.Namespace) -> int:
                             cache_dir=cache, progress=not args.quiet, argv=args.argv,
                             env_modules=args.env_module, time_limit=args.time,
                             max_nodes=args.max_nodes, restarts=args.restarts,
-                            n_jobs=args.jobs or os.cpu_count() or 1)
+                            n_jobs=args.jobs or os.cpu_count() or 1, replay=replay)
     except SystemExit as stop:  # the agent's or the environment's code called sys.exit
         if first:
             release(folder)
@@ -96,6 +102,36 @@ def pipeline_command(args: argparse.Namespace) -> int:
     if rec.stopped in ("interrupted", "terminated"):
         return EXIT_INTERRUPTED if rec.stopped == "interrupted" else EXIT_TERMINATED
     return 0
+
+
+def plan_replay(args: argparse.Namespace, task: Task, digest: str, cache: Path) -> Any:
+    """``--plan``: the plan read (as data), checked against this run (the task, the agent, the
+    settings), as a :class:`ibt.engine.plan.Replay`; None without ``--plan``. Bad input is a
+    one-line ``UsageError``."""
+    if args.plan is None:
+        return None
+    from ibt.engine.plan import (
+        MAX_PLAN_BYTES,
+        PlanError,
+        Replay,
+        check_made_for,
+        made_for,
+        read_plan,
+    )
+    from ibt.pipeline.recommend import pipeline_config
+
+    data = read_input(args.plan, "plan", "pass the plan.json a pipeline run wrote into its "
+                      "output folder (or drop --plan to run under --time)", MAX_PLAN_BYTES + 1)
+    episodes = pipeline_config(args.budget, cache, args.episodes, False).final_episodes
+    settings = {"keep": args.keep, "budget": args.budget.text, "leaves": list(args.leaves),
+                "seed": args.seed, "restarts": args.restarts, "episodes": episodes,
+                "max_nodes": args.max_nodes}
+    try:
+        planned, entries = read_plan(data, str(args.plan))
+        check_made_for(planned, made_for(task.name, args.algo, digest, settings), str(args.plan))
+    except PlanError as err:
+        raise UsageError(str(err)) from None
+    return Replay(entries, str(args.plan))
 
 
 def keep_arg(text: str) -> float:

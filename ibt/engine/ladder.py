@@ -45,11 +45,15 @@ a step that would not fit, polishes again the searched BT nearest the target amo
 smaller than every BT that keeps it (:mod:`ibt.engine.polish`). Ctrl-C or SIGTERM inside a
 step ends that step unfinished (nothing of it is cached) and the ladder returns what it has,
 marked as stopped. A rerun with a longer deadline resumes from the cache.
+
+What the clock decided is recorded: the ladder's ``plan`` lists every step done (with a
+search's restarts and a polish's seeds) and every stop, in order. Given that plan to replay
+(:mod:`ibt.engine.plan`) and no deadline, it runs every planned step and nothing else, so the
+same candidates come out on any machine and any number of cores.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -61,6 +65,7 @@ from ibt.engine.deadline import PACE_EPISODES, Deadline, Pace
 from ibt.engine.keys import leaves_of, tree_key
 from ibt.engine.learners import get_learner, learners_for, rank
 from ibt.engine.parallel import parallel_map
+from ibt.engine.plan import END, Entry, PlannedStep, PlannedStop, Replay
 from ibt.engine.search import SearchInfo
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
@@ -158,6 +163,7 @@ class Ladder:
     steps: list[str] = field(default_factory=list)  # the steps done, in order
     skipped: list[str] = field(default_factory=list)  # the steps left undone by a stop
     notes: list[str] = field(default_factory=list)
+    plan: list[Entry] = field(default_factory=list)  # the steps and stops (ibt.engine.plan)
 
 
 class Stopped(Exception):
@@ -175,11 +181,12 @@ def keeps(c: Candidate, settings: Settings) -> bool:
 def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: float,
                random_mean: float, deadline: Deadline | None = None,
                on_step: Callable[[Ladder, str], str | None] | None = None,
-               agent_length: float | None = None) -> Ladder:
+               agent_length: float | None = None, replay: Replay | None = None) -> Ladder:
     """Climb the ladder; ``agent_mean``/``random_mean`` are the choice episodes' baselines
     (``agent_length``: the agent's mean steps an episode there, where known).
     ``on_step(ladder, next_step)`` runs before every step; a string it returns stops the
-    ladder with that reason."""
+    ladder with that reason. ``replay``: a plan's steps (:mod:`ibt.engine.plan`), run every
+    one and nothing else, instead of the clock's decisions (give no deadline)."""
     deadline = deadline or Deadline(None)
     out = Ladder()
     learners = settings.learners or learners_for(agent, settings.relational)
@@ -188,18 +195,28 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     pace = Pace(agent_length)  # the run's tree measurements: seconds a step, steps an episode
     running: list[str] = []  # the step under way (what a signal cuts short)
 
+    def halt(reason: str, name: str) -> Stopped:
+        """The stop before the step ``name``, recorded in the plan."""
+        out.plan.append(PlannedStop(reason, name))
+        return Stopped(reason)
+
     def step(name: str, make: Callable[[], Any], leaves: int, stage: str, learner: str,
-             info: Any = None, episodes: float = 0.0) -> Any:
+             info: Any = None, episodes: float = 0.0, seeds: tuple[int, ...] = ()) -> Any:
         """Run one cached step, then measure its tree; ``episodes``: its least length in
-        episodes of one core's wall time (a search's, a refinement's), for the deadline."""
+        episodes of one core's wall time (a search's, a refinement's), for the deadline;
+        ``seeds``: a polish's, for the plan."""
+        planned = replay.take(name) if replay is not None else None
+        if replay is not None and not isinstance(planned, PlannedStep):
+            out.plan += [planned] if planned is not None else []  # a recorded stop
+            raise Stopped(END)
         if deadline.passed():
-            raise Stopped("time")
+            raise halt("time", name)
         kind = name.split()[0]
         left = deadline.left()
         if kind in took and took[kind] > left:
             out.notes.append(f"the ladder stopped before \"{name}\": the longest {kind} step "
                              f"took {took[kind]:.0f} s and {left:.0f} s of the budget were left")
-            raise Stopped("time")
+            raise halt("time", name)
         gated = bool(episodes) and kind not in took and deadline.seconds is not None
         if gated and not pace.steps and out.candidates:  # every measurement read from the cache
             last = out.candidates[-1]
@@ -211,10 +228,10 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
                              f"budget and its grace (at least {least:.0f} s expected: "
                              f"{pace.said(episodes)}; {left:.0f} s were left and "
                              f"{deadline.grace():.0f} s of grace)")
-            raise Stopped("time")
+            raise halt("time", name)
         reason = on_step(out, name) if on_step is not None else None
         if reason:
-            raise Stopped(reason)
+            raise halt(reason, name)
         began, running[:] = deadline.clock(), [name]
         with time_cap(deadline.left() + deadline.grace()):
             made = make()
@@ -225,6 +242,8 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         took[kind] = max(took.get(kind, 0.0), seconds)
         running.clear()
         tree, info = made if isinstance(made, tuple) else (made, info)
+        out.plan.append(PlannedStep(name, kind, stage, learner, leaves, seeds or (
+            info.seeds if isinstance(info, SearchInfo) else (settings.seed,))))
         if tree is None:  # nothing better found (a polish again)
             out.steps.append(name)
             return None
@@ -244,8 +263,10 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
         except Stopped as stop:
             return str(stop)
         except STOP_SIGNALS as err:  # Ctrl-C or SIGTERM inside a step: that step is not cached
+            out.plan.append(PlannedStop(stop_reason(err), running[0] if running else ""))
             return stop_reason(err)
         except OverTime:  # a step ran past its grace: cut, as by Ctrl-C
+            out.plan.append(PlannedStop("time", running[0] if running else ""))
             out.notes.append(f"\"{running[0] if running else 'a step'}\" was cut "
                              f"{deadline.grace():.0f} s past the time budget, unfinished (what "
                              "of it was done, such as a search's finished restarts, is cached): "
@@ -257,10 +278,11 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
     if settings.search and not agent.continuous:
         target = random_mean + settings.keep * (agent_mean - random_mean)
         out.stopped = guarded(partial(_search_ladder, out, step, cfg, agent, settings, learners,
-                                      deadline, target))
-        if out.stopped in (None, "time") and deadline.seconds is not None and not settings.full:
-            spare = guarded(partial(_spare_time, out, step, cfg, agent, settings, learners))
-            out.stopped = out.stopped if spare in (None, "time") else spare
+                                      deadline, target, replay))
+        if out.stopped in (None, "time", END) and not settings.full and (
+                deadline.seconds is not None or replay is not None):
+            spare = guarded(partial(polish.spare_time, out, step, cfg, agent, settings, replay))
+            out.stopped = out.stopped if spare in (None, "time", END) else spare
     else:
         out.stopped = guarded(partial(_imitation_ladder, out, step, cfg, agent, settings,
                                       learners))
@@ -268,6 +290,9 @@ def run_ladder(cfg: Config, agent: Agent, settings: Settings, *, agent_mean: flo
             out.notes.append("the structure search is for discrete actions: a Box task's "
                              "trees are distilled and refined (commands and thresholds)")
     out.stopped = "time" if out.stopped == "cut" else out.stopped
+    if replay is not None and out.stopped in (None, END):  # every planned step was run
+        out.stopped = None
+        replay.check_finished()
     if out.stopped:
         out.skipped = running + [s for s in plan if s not in out.steps and s not in running]
     return out
@@ -305,7 +330,7 @@ def _imitation_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent:
 
 def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
                    settings: Settings, learners: tuple[str, ...], deadline: Deadline,
-                   target: float) -> None:
+                   target: float, replay: Replay | None = None) -> None:
     """With the structure search: distil at each rung (smallest first, stopping at the first
     that keeps the target); search the rungs below it (every rung when none kept the target)
     in bisection order; then, where no smaller rung kept the target, refine the trees that
@@ -338,7 +363,10 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         # time left on further restarts, until one reaches the target
         final = last and kept is None and deadline.seconds is not None
         most = EXTRA_RESTARTS * settings.restarts if final else None
-        step(f"search {learner} at {leaves} leaves", partial(
+        name = f"search {learner} at {leaves} leaves"
+        planned = replay.peek(name) if replay is not None else None  # its restarts, no clock
+        exactly = {"exactly": len(planned.seeds)} if planned is not None else {}
+        step(name, partial(
             search.search, cfg, agent, sources, leaves, settings.seed,
             restarts=settings.restarts, relational=relational,
             scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules,
@@ -346,7 +374,7 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             # LunarLander at 0.6-0.7 of a round; 3 sharing 2 cores about one round), must fit
             # in the time left
             next_round=lambda seconds: 2 * seconds <= deadline.left(), most=most,
-            enough=target if final else None),
+            enough=target if final else None, **exactly),
             leaves, "searched", learner, episodes=search.search_length(
                 cfg, agent.task, leaves, restarts=settings.restarts, scale=settings.scale,
                 n_jobs=settings.n_jobs))
@@ -371,45 +399,6 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
             refine.refine, cfg, agent, name, distilled[leaves][name], settings.seed,
             settings.scale, settings.refine_episodes), leaves, "refined", name,
             episodes=_refine_length(cfg, agent, settings))
-
-
-def _spare_time(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Agent,
-                settings: Settings, learners: tuple[str, ...]) -> None:
-    """Time left over, the ladder done or stopped before a step that would not fit: the searched
-    BT nearest the target among those smaller than every BT that keeps it, polished again
-    (:mod:`ibt.engine.polish`: one seed a core, seeds after the search's restarts), again
-    while a polish fits, the last one improved it and it misses the target, at most
-    ``AGAIN_ROUNDS`` times."""
-    kept = min((c.bt_nodes for c in out.candidates if keeps(c, settings)), default=math.inf)
-    below = [(c, c.search) for c in out.candidates if c.stage == "searched"
-             and c.search is not None and eligible(c, settings) and c.bt_nodes < kept]
-    if not below:
-        return
-    best, info = max(below, key=lambda pair: (pair[0].retention, -pair[0].bt_nodes))
-    leaves, learner, tree = best.leaf_limit, best.learner, best.tree
-    first, width = info.seeds[-1] + 1, max(1, settings.n_jobs)  # after the restarts
-
-    def again(tree: Any, seeds: tuple[int, ...]) -> Any:
-        better, means = polish.polish_again(
-            cfg, agent, tree, leaves, settings.seed, seeds,
-            relational=get_learner(learner).combines_features,
-            scale=settings.scale, n_jobs=settings.n_jobs, env_modules=settings.env_modules)
-        out.notes.append(f"polished again at leaf limit {leaves} from seeds {list(seeds)}: "
-                         f"{', '.join(f'{m:.2f}' for m in means[1:])} on the search's choice "
-                         f"episodes against {means[0]:.2f} before; "
-                         + ("the best kept" if better is not None else "none kept"))
-        return better
-
-    for _ in range(polish.AGAIN_ROUNDS):
-        if tree is None or keeps(best, settings):
-            return
-        seeds = tuple(range(first, first + width))
-        first += width
-        tree = step(f"polish again {learner} at {leaves} leaves", partial(again, tree, seeds),
-                    leaves, "polished", learner, episodes=polish.again_length(
-                        cfg, agent.task, leaves, seeds=width, scale=settings.scale,
-                        n_jobs=settings.n_jobs))
-        best = out.candidates[-1] if tree is not None else best
 
 
 def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,

@@ -13,13 +13,14 @@ at each rung, every registered learner that accepts the agent's actions, in regi
 name a learner by its entry's name, and the engine finds the learner of a tree by its class
 (:func:`learner_of_tree`).
 
-Adding a learner is one module holding its tree fit and its :class:`Learner` entry, one line in
-:data:`BUILT_IN` (or a :func:`register_learner` call from a user's environment module) and its
-tests. A new learner is cached under the kinds :data:`LEARNER_DISTIL` and
-:data:`LEARNER_REFINE`, keyed on its name and ``version``; the code guard
-(:mod:`ibt.cache.guard`) records the ``sources`` of every built-in learner, so no cache module
-changes. A learner registered from a user's environment module is seen in worker processes too,
-since a worker imports those modules before it runs a stage.
+Adding a learner is one module holding its tree fit and its :class:`Learner` entry
+(``ibt/engine/learner_<name>.py`` for a built-in one), one line in :data:`BUILT_IN` (or a
+:func:`register_learner` call from a user's environment module) and its tests. A new learner is
+cached under the kinds :data:`LEARNER_DISTIL` and :data:`LEARNER_REFINE`, keyed on its name and
+``version``; the code guard (:mod:`ibt.cache.guard`) counts every ``engine/learner_*.py`` among
+those kinds' sources, so no cache module changes. A learner registered from a user's
+environment module is seen in worker processes too, since a worker imports those modules before
+it runs a stage.
 """
 
 from __future__ import annotations
@@ -58,9 +59,8 @@ class Learner:
     registered synthesisers do not make them (None: they do); ``trees``: the qualified names
     of the classes of its stage trees (how :func:`learner_of_tree` finds it); ``measured_as_bt``:
     its trees are rolled out through their smallest BT (a tree that does not act as a
-    :class:`ibt.evaluate.policies.TreePolicy` would); ``version`` and ``sources``: its code
-    version in the keys of :data:`LEARNER_DISTIL` and :data:`LEARNER_REFINE` and the modules
-    (package-relative) that decide its results, which the code guard records."""
+    :class:`ibt.evaluate.policies.TreePolicy` would); ``version``: its code version in the
+    keys of :data:`LEARNER_DISTIL` and :data:`LEARNER_REFINE`."""
 
     name: str
     actions: str  # DISCRETE or BOX: the action space it accepts
@@ -80,7 +80,6 @@ class Learner:
     trees: tuple[str, ...] = ()
     measured_as_bt: bool = False
     version: int = 1
-    sources: tuple[str, ...] = ()
 
     def params(self) -> dict[str, Any]:
         """Its key parameters beside the run's: :meth:`key_params`, and under the shared

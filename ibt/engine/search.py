@@ -105,7 +105,8 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
            restarts: int = 1, relational: bool = False, scale: float = 1.0,
            n_jobs: int = 1, env_modules: tuple[str, ...] = (),
            next_round: Callable[[float], bool] | None = None,
-           most: int | None = None, enough: float | None = None) -> tuple[Any, SearchInfo]:
+           most: int | None = None, enough: float | None = None,
+           exactly: int | None = None) -> tuple[Any, SearchInfo]:
     """The structure search at ``leaves`` from ``sources``: ``restarts`` seeds (``seed``,
     ``seed + 1``, ...), each restart's winner scored on the same held-out choice episodes
     (:data:`RESTART_CHOICE_FACTOR` times the search's own selection episodes); the best
@@ -118,10 +119,15 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     may start (the deadline): the choice is then among the restarts done, and a rerun with more
     time adds the others from the cache. With it, rounds of at most ``n_jobs`` go on past
     ``restarts`` up to ``most`` seeds while it allows, up to the first restart whose choice
-    mean reaches ``enough`` (the target; the same seeds on any number of cores)."""
+    mean reaches ``enough`` (the target; the same seeds on any number of cores).
+    ``exactly``: that many restarts, whatever the clock (a replayed plan's,
+    :mod:`ibt.engine.plan`; ``next_round``, ``most`` and ``enough`` are then not used)."""
     task = agent.task
     config = budgets.search_config(cfg, task, leaves, scale)
-    most = restarts if next_round is None else max(restarts, most or restarts)
+    if exactly is not None:
+        next_round, most, enough = None, exactly, None
+    else:
+        most = restarts if next_round is None else max(restarts, most or restarts)
     quiet = replace(cfg, progress=cfg.progress and most == 1)
     width = max(1, min(n_jobs, most))
     choice = selection_seeds(choice_episodes(config), seed, offset=RESTART_CHOICE_OFFSET)

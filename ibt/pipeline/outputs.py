@@ -1,8 +1,9 @@
 """The files of ``python -m ibt pipeline`` (:func:`write_outputs`): the recommended BT
 (``bt.json``, ``bt.xml``, ``bt.png``, ``bt.svg``), the BT that agrees most with the agent
 (``faithful_bt.json``, ``faithful_bt.xml``), ``front.png``, ``episode.gif`` (the recommended
-BT acting, where the task renders frames) and ``report.md``, written as one set into a folder
-the pipeline owns (:mod:`ibt.pipeline.owned_folder`)."""
+BT acting, where the task renders frames), ``plan.json`` (the steps the run took,
+:mod:`ibt.engine.plan`) and ``report.md``, written as one set into a folder the pipeline owns
+(:mod:`ibt.pipeline.owned_folder`)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from ibt.pipeline.recommend import Recommendation
 
 #: the set a run writes; report.md last (it says what the others are)
 OUTPUTS = ("bt.json", "bt.xml", "bt.png", "bt.svg", "faithful_bt.json", "faithful_bt.xml",
-           "front.png", "episode.gif", "report.md")
+           "front.png", "episode.gif", "plan.json", "report.md")
 #: files a run may leave out (said in the report); an earlier run's copy is then removed
 OPTIONAL = ("episode.gif",)
 GIF_FRAMES = 300  #: episode.gif: at most this many frames (a longer episode is subsampled)
@@ -142,19 +143,81 @@ def _interval(returns: list[float]) -> str:
     return f"[{low:.2f}, {high:.2f}] ({interval_label('ci', len(returns), 'episode')})"
 
 
+def rerun(rec: Recommendation, out: Path, *, plan: bool = False) -> str:
+    """The run's command again: under the clock (its ``--time``, a replay's ``--plan``
+    dropped), or with ``plan`` replaying the plan it wrote (its ``--time`` dropped)."""
+    task = rec.task.name
+    if rec.argv:
+        argv = _without(rec.argv, "--plan")
+        argv = _without(argv, "--time") if plan else argv
+    else:
+        argv = ["pipeline", task, rec.algo, "--checkpoint", str(rec.checkpoint), "-o", str(out),
+                "--keep", str(rec.keep), "--budget", rec.budget.text, "--seed", str(rec.seed)]
+    return "python -m ibt " + shlex.join([*argv, *(["--plan", str(out / "plan.json")]
+                                                    if plan else [])])
+
+
+def _without(argv: list[str], option: str) -> list[str]:
+    """``argv`` without ``option`` and its value (``--time 5m``, ``--time=5m``, or an
+    abbreviation argparse takes, ``--ti 5m``)."""
+    kept: list[str] = []
+    skip = False
+    for arg in argv:
+        name = arg.split("=", 1)[0]
+        if skip:
+            skip = False
+        elif arg.startswith("--") and len(name) > 2 and option.startswith(name):
+            skip = "=" not in arg
+        else:
+            kept.append(arg)
+    return kept
+
+
 def commands(rec: Recommendation, out: Path) -> list[str]:
-    """Commands that reproduce the run and check its BT."""
+    """Commands that reproduce the run (its plan replayed, then the ladder anytime) and check
+    its BT."""
     task, q = rec.task.name, shlex.quote
-    again = "python -m ibt " + shlex.join(rec.argv) if rec.argv else (
-        f"python -m ibt pipeline {task} {rec.algo} --checkpoint {q(str(rec.checkpoint))} "
-        f"-o {q(str(out))} --keep {rec.keep} --budget {rec.budget.text} --seed {rec.seed}")
     env = list(dict.fromkeys([*rec.env_modules, *filter(None, [rec.task.setup_module])]))
     module = "".join(f" --env-module {q(m)}" for m in env)
     bt = q(str(out / "bt.json"))
-    return [again,
+    return [rerun(rec, out, plan=True) + "  # the same steps, whatever the time",
+            rerun(rec, out) + "  # rerun anytime: the steps the time allows",
             f"python -m ibt evaluate {bt} --task {task}{module} --episodes {rec.episodes}"
             "  # the choice episodes",
             f"python -m ibt run-btcpp {q(str(out / 'bt.xml'))} --task {task}{module}"]
+
+
+def plan_document(rec: Recommendation) -> dict[str, Any]:
+    """``plan.json``: the steps the run took and where it stopped (:mod:`ibt.engine.plan`)."""
+    from ibt.engine.plan import document, made_for
+
+    settings = {"keep": rec.keep, "budget": rec.budget.text, "leaves": list(rec.leaf_limits),
+                "seed": rec.seed, "restarts": rec.restarts, "episodes": rec.episodes,
+                "max_nodes": rec.max_nodes}
+    return document(made_for(rec.task.name, rec.algo, rec.checkpoint_sha256, settings),
+                    rec.ladder.plan)
+
+
+def reproduce_text(rec: Recommendation, out: Path) -> list[str]:
+    """The report's ``## Reproduce`` section: what the run was given, its plan, the commands."""
+    from ibt.engine.plan import summary
+
+    replayed = (f"This run replayed the plan `{rec.replayed}` (`--plan`: no time budget). "
+                if rec.replayed else "")
+    return [
+        "## Reproduce", "",
+        f"{'Agent' if rec.algo == 'callable' else 'Checkpoint'} `{rec.checkpoint}` "
+        f"(SHA-256 prefix {rec.checkpoint_sha256}), seed "
+        f"{rec.seed}, budget {rec.budget.text}, leaf limits "
+        f"{', '.join(map(str, rec.leaf_limits))}.", "",
+        f"{replayed}The steps a run takes under `--time` depend on the clock (the machine's "
+        f"speed and load); `plan.json` records those this run took, in order, and where it "
+        f"stopped: {summary(rec.ladder.plan)}. Replayed with `--plan` (the first command), "
+        "every step of the plan runs and nothing else, whatever the time or the number of "
+        "`--jobs`: the same files on any machine (each step is cached, so here it repeats "
+        "nothing). The second command climbs the ladder again under the clock, as far as the "
+        "time allows.", "",
+        *fenced("\n".join(commands(rec, out)), "bash"), ""]
 
 
 def next_step(rec: Recommendation) -> str:
@@ -177,7 +240,8 @@ def ladder_text(rec: Recommendation) -> list[str]:
     """How the ladder went: a stop's mark, the steps done and left, and each search's choice
     among its restarts."""
     ladder = rec.ladder
-    how = {"time": f"the time budget ({rec.time_limit:.0f} s) ended it",
+    budget = f" ({rec.time_limit:.0f} s)" if rec.time_limit is not None else ""  # a replay's
+    how = {"time": f"the time budget{budget} ended it",
            "interrupted": "Ctrl-C stopped it", "terminated": "SIGTERM stopped it"}
     lines = ["## How the search went", ""]
     if ladder.stopped:
@@ -188,7 +252,9 @@ def ladder_text(rec: Recommendation) -> list[str]:
                   "on the machine's speed; a rerun with a longer `--time` resumes from the "
                   "cache and, once the ladder finishes, gives the same files.", ""]
     else:
-        lines += ["The ladder finished within its time budget: trees distilled at each leaf "
+        how_far = ("replayed its plan, every step in order (no time budget)"
+                   if getattr(rec, "replayed", None) else "finished within its time budget")
+        lines += [f"The ladder {how_far}: trees distilled at each leaf "
                   "limit, smallest first (axis-aligned, then relational), up to the first limit "
                   "whose best BT kept the target; the structure search by return below it (at "
                   "every limit when none kept the target) in the order of a binary search for "
@@ -385,15 +451,9 @@ def report_text(rec: Recommendation, out: Path, gif: tuple[int, str | None]) -> 
         "flavour), `bt.png`/`bt.svg` (drawing), `faithful_bt.json`/`faithful_bt.xml` (the "
         "BT that agrees most with the agent), `front.png`, "
         f"{'`episode.gif` (the recommended BT acting), ' if gif_note is None else ''}"
-        f"this report; `{cache}` holds every step, so a rerun with a larger budget repeats "
-        "only what changed.", "",
-        "## Reproduce", "",
-        f"{'Agent' if rec.algo == 'callable' else 'Checkpoint'} `{rec.checkpoint}` "
-        f"(SHA-256 prefix {rec.checkpoint_sha256}), seed "
-        f"{rec.seed}, budget {rec.budget.text}, leaf limits "
-        f"{', '.join(map(str, rec.leaf_limits))}; the same command on the same machine gives "
-        "the same files.", "",
-        *fenced("\n".join(commands(rec, out)), "bash"), ""]
+        f"`plan.json` (the steps this run took), this report; `{cache}` holds every step, so a "
+        "rerun with a larger budget repeats only what changed.", "",
+        *reproduce_text(rec, out)]
     return "\n".join(lines)
 
 
@@ -422,7 +482,7 @@ def incomplete_text(rec: Recommendation, out: Path) -> str:
     return (f"# Incomplete: {out} was being rewritten\n\n`python -m ibt pipeline` stopped while "
             "it renamed its new files into place, so this folder may mix files of two runs. "
             "Rerun it (every finished step is cached):\n\n"
-            + "\n".join(fenced(commands(rec, out)[0], "bash")) + "\n")
+            + "\n".join(fenced(rerun(rec, out), "bash")) + "\n")
 
 
 def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder,
@@ -438,6 +498,7 @@ def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder,
     before any work), or a path, claimed here (:class:`FolderError` if it holds files the
     pipeline did not write)."""
     from ibt.bt.json_io import save_json
+    from ibt.engine.plan import dumps
     from ibt.export.btcpp import to_btcpp_xml
     from ibt.export.pictures import draw_bt
     from ibt.files import atomic_write_text
@@ -456,6 +517,7 @@ def write_outputs(rec: Recommendation, out: str | Path | OwnedFolder,
         draw_front(rec, tmp / "front.png")
         gif = (draw_episode(rec, tmp / "episode.gif") if draw_episode is not None
                else (0, "no `episode.gif`: this run drew none"))
+        atomic_write_text(tmp / "plan.json", dumps(plan_document(rec)))
         atomic_write_text(tmp / "report.md", report_text(rec, path, gif))
 
     return write_set(folder, OUTPUTS, write, incomplete_text(rec, path), optional=OPTIONAL)

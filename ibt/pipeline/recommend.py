@@ -42,6 +42,7 @@ from ibt.engine.deadline import Deadline
 from ibt.engine.keys import bt_digest
 from ibt.engine.ladder import Candidate, Ladder, Settings, eligible, run_ladder
 from ibt.engine.measure import Returns, held_out
+from ibt.engine.plan import Replay
 from ibt.evaluate.policies import BTPolicy
 from ibt.evaluate.rollouts import retention_norm
 from ibt.profiles import Config
@@ -117,6 +118,7 @@ class Recommendation:
     elapsed: float = 0.0  # seconds the ladder ran
     max_nodes: int | None = None
     restarts: int = 1
+    replayed: str | None = None  # the plan file this run replayed (ibt.engine.plan), if any
     agreement: Agreement | None = None  # every candidate's action agreement with the agent
 
     @property
@@ -288,13 +290,16 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
               argv: list[str] | None = None, env_modules: tuple[str, ...] = (),
               relational: bool = True, time_limit: float | None = DEFAULT_TIME,
               max_nodes: int | None = None, restarts: int = DEFAULT_RESTARTS,
-              n_jobs: int = 1, full: bool = False, search: bool = True) -> Recommendation:
+              n_jobs: int = 1, full: bool = False, search: bool = True,
+              replay: Replay | None = None) -> Recommendation:
     """Climb the ladder for ``agent`` within ``time_limit`` seconds; the recommended BT (among
-    those of at most ``max_nodes`` nodes) and everything measured."""
+    those of at most ``max_nodes`` nodes) and everything measured. ``replay``: a plan's steps
+    (:mod:`ibt.engine.plan`) instead, every one and nothing else, with no time limit."""
     budget = budget or Budget()
     task = agent.task
     cfg = pipeline_config(budget, Path(cache_dir), episodes, progress)
     quiet = replace(cfg, progress=False)
+    time_limit = None if replay is not None else time_limit
     deadline = Deadline(time_limit)
     choice, confirm = held_out(cfg.final_episodes, 0), held_out(cfg.final_episodes, 1)
     agent_key = {"algo": agent.algo, "expert_sha256": agent.digest}  # measure.agent_returns'
@@ -327,7 +332,7 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         ladder = run_ladder(cfg, agent, settings, agent_mean=agent_choice.mean,
                             random_mean=random_choice.mean,
                             deadline=deadline.reserving(CONFIRMATION_RESERVE * baselines),
-                            on_step=on_step,
+                            on_step=on_step, replay=replay,
                             agent_length=sum(lengths) / len(lengths) if lengths else None)
     if warning:
         ladder.notes.insert(0, warning)
@@ -363,7 +368,8 @@ def recommend(agent: Agent, *, keep: float = DEFAULT_KEEP, budget: Budget | None
         agent_choice=agent_choice.mean, random_choice=random_choice.mean,
         argv=list(argv or []), env_modules=tuple(env_modules), cache_dir=Path(cache_dir),
         ladder=ladder, time_limit=time_limit, elapsed=elapsed, max_nodes=max_nodes,
-        restarts=restarts, agreement=agreement)
+        restarts=restarts, agreement=agreement,
+        replayed=replay.source if replay is not None else None)
 
 
 TICK = 1.0  #: seconds between redraws of the pipeline's bar while a step runs

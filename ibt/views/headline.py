@@ -124,8 +124,32 @@ def lookup_config(cfg: Config) -> Config:
     return replace(cfg, profile="paper", **{**paper, "progress": False, "refresh": False})
 
 
+HEADLINE_FILES = ("bt.json", "bt.xml", "bt.png", "bt.svg", "episode.gif")  #: a folder's files
+
+
+def retire(root: Path, before: list[str], now: list[str]) -> list[str]:
+    """Remove the folders under ``root`` that the last headline listed (``before``: the names
+    in its CSV, which this module wrote) and this one does not (``now``): only the files this
+    module writes there, and the folder where that empties it (a user's file in it stays).
+    Returns the names retired."""
+    gone = []
+    for name in sorted(set(before) - set(now)):
+        folder = root / name
+        if "/" in name or name in ("", ".", "..") or not folder.is_dir() or folder.is_symlink():
+            continue
+        for file in HEADLINE_FILES:
+            if (folder / file).is_file() and not (folder / file).is_symlink():
+                (folder / file).unlink()
+        if not any(folder.iterdir()):
+            folder.rmdir()
+        gone.append(name)
+    return gone
+
+
 def write_headline(cfg: Config, results: Path = DATA_DIR / "results") -> pd.DataFrame:
-    """Pick the headline BTs, write each one's files and ``data/results/headline.csv``."""
+    """Pick the headline BTs, write each one's files and ``data/results/headline.csv``; the
+    folders of BTs that the last headline listed and this one does not are retired
+    (:func:`retire`)."""
     from ibt.export.btcpp import to_btcpp_xml
     from ibt.export.pictures import draw_bt
     from ibt.files import atomic_write_text
@@ -136,6 +160,8 @@ def write_headline(cfg: Config, results: Path = DATA_DIR / "results") -> pd.Data
     if smoke:  # one task, read from the committed cache; files to the scratch folders
         table = table.iloc[:1]
     root, lookup = cfg.figures_dir / "headline", lookup_config(cfg)
+    last = cfg.data_dir / "results" / "headline.csv"
+    before = pd.read_csv(last)["name"].astype(str).tolist() if last.is_file() else []
     paths, written = [], set()
     for row in table.itertuples():
         folder = root / row.name
@@ -164,6 +190,7 @@ def write_headline(cfg: Config, results: Path = DATA_DIR / "results") -> pd.Data
                "xml_file", "png_file", "svg_file", "gif_file"]
     out = out.reindex(columns=columns)
     write_results(cfg, out, "headline", keep=KEEP)
+    retire(root, before, sorted(written))
     return out
 
 
@@ -173,4 +200,4 @@ def _shown(path: Path, cfg: Config) -> str:
     return path.relative_to(root).as_posix() if path.is_relative_to(root) else path.name
 
 
-__all__ = ["lookup_config", "pipeline_episode", "write_gif", "write_headline"]
+__all__ = ["lookup_config", "pipeline_episode", "retire", "write_gif", "write_headline"]
