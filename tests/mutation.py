@@ -62,8 +62,12 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/coverage.py": ("tests/test_bt.py",),
     "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
                                "tests/test_synthesis.py"),
-    "ibt/synth/rules.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
-                           "tests/test_synthesis.py"),
+    "ibt/synth/rules.py": ("tests/test_rules_logic.py", "tests/test_verification_law.py",
+                           "tests/test_mutants.py", "tests/test_synthesis.py"),
+    "ibt/bt/document.py": ("tests/test_bt_document.py", "tests/test_bt_model_law.py",
+                           "tests/test_relational_bt.py"),
+    # the arithmetic first; then the ladder's use of it (which trains agents: minutes)
+    "ibt/engine/deadline.py": ("tests/test_deadline_law.py", "tests/test_deadline.py"),
     # in-process tests only: the CLI runs of test_hostile_files.py take minutes a mutant
     "ibt/pipeline/owned_folder.py": (
         "tests/test_owned_folder.py",
