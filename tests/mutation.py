@@ -125,6 +125,10 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "if threading.current_thread() is not threading.main_thread():",
      "if threading.current_thread() != threading.main_thread():",
      "`threading.Thread` defines no equality, so `!=` compares identities as `is not` does"),
+    ("ibt/bt/document.py", "return Inverter(children[0])",
+     "return Inverter(children[-1])",
+     "the line follows the check that an inverter has exactly one child, which `children[0]` "
+     "and `children[-1]` both name"),
 )
 
 #: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.
