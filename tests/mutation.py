@@ -129,6 +129,14 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "return Inverter(children[-1])",
      "the line follows the check that an inverter has exactly one child, which `children[0]` "
      "and `children[-1]` both name"),
+    ("ibt/synth/rules.py", "if left == right:  # leaf", "if left >= right:  # leaf",
+     "scikit-learn adds a node's two children together, the left one first, so an inner "
+     "node's left child is numbered below its right one; at a leaf both are -1"),
+    ("ibt/synth/rules.py", "action = int(classes[int(np.argmax(t.value[node][0]))])",
+     "action = int(classes[int(np.argmax(t.value[node][-1]))])",
+     "a tree of one output (every tree ibt distils; a multi-output tree's classes cannot be "
+     "read as actions at all) has one row of class weights per node, which `[0]` and `[-1]` "
+     "both name"),
 )
 
 #: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.
