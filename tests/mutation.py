@@ -62,8 +62,22 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/coverage.py": ("tests/test_bt.py",),
     "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
                                "tests/test_synthesis.py"),
-    "ibt/synth/rules.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
-                           "tests/test_synthesis.py"),
+    "ibt/synth/rules.py": ("tests/test_rules_logic.py", "tests/test_verification_law.py",
+                           "tests/test_mutants.py", "tests/test_synthesis.py"),
+    "ibt/bt/document.py": ("tests/test_bt_document.py", "tests/test_bt_model_law.py",
+                           "tests/test_relational_bt.py"),
+    # the arithmetic first; then the ladder's use of it (which trains agents: minutes)
+    "ibt/engine/deadline.py": ("tests/test_deadline_law.py", "tests/test_deadline.py"),
+    # in-process tests only: the CLI runs of test_hostile_files.py take minutes a mutant
+    "ibt/pipeline/owned_folder.py": (
+        "tests/test_owned_folder.py",
+        "tests/test_hostile_files.py::test_every_point_of_the_write_phase_leaves_a_whole_set",
+        "tests/test_hostile_files.py::test_the_force_note_names_an_edited_file_as_edited",
+        "tests/test_hostile_files.py::test_a_file_edited_during_the_run_is_not_replaced",
+        "tests/test_deletes_only_its_own.py::test_the_pipeline_removes_only_temporary_folders_"
+        "it_recorded",
+        "tests/test_pipeline_outputs.py::test_an_old_gif_of_ours_is_removed_and_a_users_is_"
+        "left"),
     "ibt/evaluate/rollouts.py": ("tests/test_seed_blocks.py", "tests/test_retention_law.py",
                                  "tests/test_rollout_accounting.py", "tests/test_env_faults.py",
                                  "tests/test_mutants.py",
@@ -107,6 +121,22 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      'if x.ndim != 2 or x.shape[1] is not io["n_features"]:',
      "CPython keeps one object per small integer (a feature count is one), so `is not` and "
      "`!=` agree"),
+    ("ibt/pipeline/owned_folder.py",
+     "if threading.current_thread() is not threading.main_thread():",
+     "if threading.current_thread() != threading.main_thread():",
+     "`threading.Thread` defines no equality, so `!=` compares identities as `is not` does"),
+    ("ibt/bt/document.py", "return Inverter(children[0])",
+     "return Inverter(children[-1])",
+     "the line follows the check that an inverter has exactly one child, which `children[0]` "
+     "and `children[-1]` both name"),
+    ("ibt/synth/rules.py", "if left == right:  # leaf", "if left >= right:  # leaf",
+     "scikit-learn adds a node's two children together, the left one first, so an inner "
+     "node's left child is numbered below its right one; at a leaf both are -1"),
+    ("ibt/synth/rules.py", "action = int(classes[int(np.argmax(t.value[node][0]))])",
+     "action = int(classes[int(np.argmax(t.value[node][-1]))])",
+     "a tree of one output (every tree ibt distils; a multi-output tree's classes cannot be "
+     "read as actions at all) has one row of class weights per node, which `[0]` and `[-1]` "
+     "both name"),
 )
 
 #: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.
@@ -255,7 +285,9 @@ def run_module(module: str, sample: int, seed: int) -> None:
         if outcome != TestOutcome.SURVIVED:
             sys.exit(f"{module}: its tests fail on the unmutated code; fix them first:\n"
                      f"{command}\n{output[-2000:]}")
-    timeout = max(60.0, 2 * baseline)  # a mutant that loops forever is killed by it
+    # a mutant that loops forever is killed by it; generous, as a run under `nice` on a loaded
+    # machine can take minutes where its baseline took seconds (a false kill otherwise)
+    timeout = max(300.0, 5 * baseline)
     if fresh:
         db_path.unlink(missing_ok=True)
     with use_db(str(db_path), WorkDB.Mode.create) as db:
@@ -400,6 +432,23 @@ def _changed_lines(diff: str) -> str:
     return " / ".join(f"`{ln[0]} {ln[1:].strip()}`" for ln in lines)
 
 
+def _listed_lines() -> dict[str, dict[str, list[str]]]:
+    """The survivor and equivalent lines of docs/mutation.md's generated part, by section and
+    module: a module without a session here keeps its lines, as it keeps its row."""
+    doc = DOC.read_text(encoding="utf-8") if DOC.exists() else ""
+    block = doc.partition(BEGIN)[2].partition(END)[0]
+    found: dict[str, dict[str, list[str]]] = {"survivors": {}, "equivalents": {}}
+    section = None
+    for line in block.splitlines():
+        if line.startswith("Survivors"):
+            section = "survivors"
+        elif line.startswith("Equivalent"):
+            section = "equivalents"
+        elif section and line.startswith("- `"):
+            found[section].setdefault(line[3:].partition("`")[0], []).append(line)
+    return found
+
+
 def write_summary() -> None:
     """Rewrite the CSV and the generated part of docs/mutation.md from every session (a module
     without a session keeps its committed row)."""
@@ -411,16 +460,19 @@ def write_summary() -> None:
     if SUMMARY.exists():
         with SUMMARY.open(newline="") as f:
             old = {r["module"]: r for r in csv.DictReader(f)}
+    listed = _listed_lines()
     rows, survivors, equivalents = [], [], []
     for module in core_modules():
         got = summarise(module)
         if got is None:
             rows.append(old.get(module, {"module": module, "tests": "not measured"}))
+            survivors += listed["survivors"].get(module, [])
+            equivalents += listed["equivalents"].get(module, [])
             continue
         row, surv, equiv = got
         rows.append({**{f: getattr(row, f) for f in fields[:-1]}, "score_pct": row.score})
-        survivors += [(module, d) for d, _ in surv]
-        equivalents += [(module, d, r) for d, r in equiv]
+        survivors += [f"- `{module}`: {_changed_lines(d)}" for d, _ in surv]
+        equivalents += [f"- `{module}`: {_changed_lines(d)}: {r}" for d, r in equiv]
     out = io.StringIO()
     writer = csv.DictWriter(out, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
@@ -438,9 +490,9 @@ def write_summary() -> None:
     if unmeasured:
         text += [f"Not measured yet: {', '.join(unmeasured)}.", ""]
     text += ["Survivors (each a change no mapped test notices):", ""]
-    text += [f"- `{m}`: {_changed_lines(d)}" for m, d in survivors] or ["- none"]
+    text += survivors or ["- none"]
     text += ["", "Equivalent mutants (excluded from the score):", ""]
-    text += [f"- `{m}`: {_changed_lines(d)}: {r}" for m, d, r in equivalents] or ["- none"]
+    text += equivalents or ["- none"]
     doc = DOC.read_text(encoding="utf-8")
     head, _, rest = doc.partition(BEGIN)
     _, _, tail = rest.partition(END)
