@@ -25,9 +25,9 @@ import numpy as np
 from sklearn.tree import DecisionTreeRegressor
 
 from ibt.distill.loop import (
-    METHODS,
     CommandVectors,
     Distillation,
+    MethodSchedule,
     check_loop_settings,
     interactive_loop,
 )
@@ -39,7 +39,7 @@ DEFAULT_ITERATIONS = 20  #: iterations where the task's budget names none
 
 
 @dataclass(frozen=True)
-class BoxDistillConfig:
+class BoxDistillConfig(MethodSchedule):
     """Everything that determines a continuous distillation run (with the expert and seed)."""
 
     method: str = "dagger"
@@ -55,15 +55,6 @@ class BoxDistillConfig:
         check_loop_settings(self.method, self.n_iterations, self.labels_per_iteration)
         if self.max_leaf_nodes is not None and self.max_leaf_nodes < 2:
             raise ValueError(f"max_leaf_nodes must be at least 2, got {self.max_leaf_nodes}")
-
-    @property
-    def beta(self) -> Any:
-        """The method's beta schedule (the expert's probability per iteration)."""
-        return METHODS[self.method].schedule
-
-    @property
-    def weighted(self) -> bool:
-        return METHODS[self.method].weighted
 
     def as_params(self) -> dict[str, Any]:
         return asdict(self)

@@ -33,9 +33,9 @@ import numpy as np
 
 from ibt.bt.linear import MAX_TERMS
 from ibt.distill.loop import (
-    METHODS,
     CommandVectors,
     Distillation,
+    MethodSchedule,
     check_loop_settings,
     interactive_loop,
 )
@@ -322,7 +322,7 @@ def fit_model_tree(x: np.ndarray, y: np.ndarray, max_leaves: int, *, max_terms: 
 
 # ------------------------------------------------------------------------ the interactive loop
 @dataclass(frozen=True)
-class ControllerConfig:
+class ControllerConfig(MethodSchedule):
     """Everything that determines a controller distillation (with the agent and seed); the
     oblique learner's settings are the same with tests of at least one feature
     (:class:`ibt.distill.oblique.ObliqueConfig`)."""
@@ -345,14 +345,6 @@ class ControllerConfig:
         if not self.min_terms <= self.max_terms <= MAX_TERMS:
             raise ValueError(f"max_terms must be {self.min_terms} to {MAX_TERMS}, got "
                              f"{self.max_terms}")
-
-    @property
-    def beta(self) -> Any:
-        return METHODS[self.method].schedule
-
-    @property
-    def weighted(self) -> bool:
-        return METHODS[self.method].weighted
 
     def as_params(self) -> dict[str, Any]:
         return {"learner": self.learner, **asdict(self)}

@@ -205,6 +205,21 @@ class Learner(Protocol):
         ...
 
 
+class MethodSchedule:
+    """Settings whose ``method`` names an entry of :data:`METHODS`: its beta schedule (the
+    expert's probability per iteration) and whether labels are weighted."""
+
+    method: str
+
+    @property
+    def beta(self) -> Any:
+        return METHODS[self.method].schedule
+
+    @property
+    def weighted(self) -> bool:
+        return METHODS[self.method].weighted
+
+
 class CommandVectors:
     """How a learner of ``Box`` actions labels and mixes (the regression and controller
     learners): the expert's command vectors (weighted by its critic where the method weighs,

@@ -261,6 +261,21 @@ def rollout(task: Task, act: ActFn | IndexedActFn, seeds: Sequence[int], *, n_en
     return Rollout(returns[:used], lengths[:used], infos[:used], terminal[:used], collected)
 
 
+def visited_features(task: Task, decide: Callable[[np.ndarray], np.ndarray],
+                     seeds: Sequence[int], *, n_envs: int) -> np.ndarray:
+    """The feature rows a policy (``decide``: feature rows -> actions) visits on ``seeds``, in
+    the order it decided them."""
+    states: list[np.ndarray] = []
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        x = task.features(obs)
+        states.append(x)
+        return decide(x)
+
+    rollout(task, act, seeds, n_envs=n_envs)
+    return np.concatenate(states)
+
+
 def _bad_answer(answer: Any) -> str:
     if not isinstance(answer, tuple) or len(answer) != 5:
         size = f"{len(answer)} values" if isinstance(answer, tuple) else type(answer).__name__

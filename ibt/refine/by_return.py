@@ -45,6 +45,7 @@ from ibt.evaluate.rollouts import (
     REFINE_SELECTION_OFFSET,
     rollout,
     selection_seeds,
+    visited_features,
 )
 from ibt.refine.tree_arrays import TreeArrays
 from ibt.tasks.settings import REFINE_STAGES, RefineConfig
@@ -230,15 +231,7 @@ def visited_spread(task: Task, decide: Callable[[np.ndarray], np.ndarray],
     """Each feature's standard deviation over the states a policy visits (``decide``: feature
     rows -> actions) on 8 fresh episodes, floored at a thousandth of the feature's box: the
     unit in which CMA-ES moves a threshold on that feature."""
-    states: list[np.ndarray] = []
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        x = task.features(obs)
-        states.append(x)
-        return decide(x)
-
-    rollout(task, act, episodes.fresh(8), n_envs=8)
-    x = np.concatenate(states).astype(np.float64)
+    x = visited_features(task, decide, episodes.fresh(8), n_envs=8).astype(np.float64)
     box = np.asarray(task.high, dtype=np.float64) - np.asarray(task.low, dtype=np.float64)
     floor = np.where(np.isfinite(box) & (box > 0), 1e-3 * box, 1e-3)
     return np.maximum(x.std(axis=0), floor)

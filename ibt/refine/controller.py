@@ -106,18 +106,11 @@ def tree_from_doc(doc: dict[str, Any]) -> Tree:
 def _spreads(tree: Tree, task: Task, episodes: RefineEpisodes) -> tuple[np.ndarray, np.ndarray]:
     """Each feature's and each split's standard deviation over the states the tree visits (8
     fresh episodes), floored at a thousandth of the feature's box."""
-    from ibt.evaluate.rollouts import rollout
+    from ibt.evaluate.rollouts import visited_features
 
     population = ControllerPopulation.of([tree], task)
-    states: list[np.ndarray] = []
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        x = task.features(obs)
-        states.append(x)
-        return population.decide(x, np.zeros(len(x), dtype=np.int64))
-
-    rollout(task, act, episodes.fresh(8), n_envs=8)
-    x = widen(np.concatenate(states))
+    x = widen(visited_features(task, lambda x: population.decide(x, np.zeros(len(x), np.int64)),
+                               episodes.fresh(8), n_envs=8))
     box = np.asarray(task.high, dtype=np.float64) - np.asarray(task.low, dtype=np.float64)
     floor = np.where(np.isfinite(box) & (box > 0), 1e-3 * box, 1e-3)
     feature = np.maximum(x.std(axis=0), floor)

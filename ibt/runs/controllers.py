@@ -22,7 +22,7 @@ import numpy as np
 
 from ibt.distill.controller import ControllerArrays, ControllerConfig
 from ibt.distill.oblique import ObliqueArrays, ObliqueConfig
-from ibt.evaluate.rollouts import final_seeds, rollout
+from ibt.evaluate.rollouts import final_seeds, visited_features
 from ibt.profiles import Config
 from ibt.tasks.settings import RefineConfig
 from ibt.tasks.task import Task
@@ -144,15 +144,10 @@ def verified(task: Task, algo: str, leaves: int, seed: int, cfg: Config
     record = refined(task, algo, leaves, seed, cfg)
     tree = tree_from_doc(record["candidates"][record["best_index"]])
     population = ControllerPopulation.of([tree], task)
-    visited: list[np.ndarray] = []
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        x = task.features(obs)
-        visited.append(x)
-        return population.decide(x, np.zeros(len(x), dtype=np.int64))
-
-    rollout(task, act, final_seeds(4), n_envs=4)  # states to check the BT on
-    built = controller_bt(tree, task, check_states(tree, task, np.concatenate(visited),
+    visited = visited_features(  # states to check the BT on
+        task, lambda x: population.decide(x, np.zeros(len(x), np.int64)), final_seeds(4),
+        n_envs=4)
+    built = controller_bt(tree, task, check_states(tree, task, visited,
                                                    seed=seed))
     return record, tree, built
 
