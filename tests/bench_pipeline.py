@@ -46,6 +46,7 @@ class Case:
     leaves: str | None = None  # --leaves (default: the pipeline's)
     confirm: int = 0  # also evaluate the recommended BT on this many further fresh episodes
     max_nodes: int | None = None  # --max-nodes
+    seed: int = 0  # --seed: another draw of the same command (distillation and search seeds)
 
 
 CASES = (
@@ -71,6 +72,11 @@ CASES = (
     Case("lunarlander-dqn-22", "LunarLander-v3", "dqn", time="60m", full=False, leaves="22",
          confirm=1000),
 )
+# seeds 1 and 2 of the LunarLander one-command results: three draws of each command
+CASES += tuple(replace(case, name=f"{case.name}-seed{seed}", seed=seed) for case in CASES
+               if case.name in ("lunarlander-ppo", "lunarlander-dqn", "lunarlander-ppo-22",
+                                "lunarlander-dqn-22")
+               for seed in (1, 2))
 
 
 def train_user_agents() -> None:
@@ -118,6 +124,8 @@ def run(case: Case) -> dict[str, object]:
         argv += ["--leaves", case.leaves]
     if case.max_nodes:
         argv += ["--max-nodes", str(case.max_nodes)]
+    if case.seed:
+        argv += ["--seed", str(case.seed)]
     jobs = os.environ.get("IBT_BENCH_JOBS")  # fewer processes, e.g. two benchmarks at once
     if jobs:
         argv += ["--jobs", jobs]
@@ -131,7 +139,7 @@ def run(case: Case) -> dict[str, object]:
     row: dict[str, object] = {
         "case": case.name, "task": case.task, "algo": case.algo,
         "time_limit": case.time, "leaves": case.leaves or "default",
-        "max_nodes": case.max_nodes, "wall_s": round(wall, 1),
+        "max_nodes": case.max_nodes, "seed": case.seed, "wall_s": round(wall, 1),
         "exit": done.returncode,
         "bt_nodes": int(match.group(1)) if match else None,
         "retention_confirmed": float(match.group(2)) if match else None,
