@@ -196,6 +196,28 @@ def test_a_rungs_learners_distilled_on_two_cores_give_the_same_trees(agents, tmp
     assert [c.bt.to_json() for c in one.candidates] == [c.bt.to_json() for c in two.candidates]
 
 
+@pytest.mark.slow
+def test_the_trees_that_kept_the_target_refined_on_two_cores_give_the_same_bts(agents,
+                                                                             tmp_path):
+    """Every learner's tree keeps a low target at the first rung: the refinements that follow
+    run alongside on two cores (the first step refines both); the same steps and BTs as one
+    core's, one after the other."""
+    from ibt.tasks.catalogue import resolve_task
+
+    agent = sb3_agent(resolve_task("ToyCart-v0"), "ppo", agents / "cart.zip")
+    run = dict(budget=parse_budget("smoke"), keep=0.01, leaf_limits=(4,), restarts=1,
+               progress=False, env_modules=("tests.fixtures.toy_cart",))
+    one = recommend(agent, cache_dir=tmp_path / "one", n_jobs=1, **run)
+    two = recommend(agent, cache_dir=tmp_path / "two", n_jobs=2, **run)
+    refined = [s for s in one.ladder.steps if s.startswith("refine")]
+    assert len(refined) >= 2, one.ladder.steps
+    assert one.ladder.steps == two.ladder.steps
+    assert [c.bt.to_json() for c in one.candidates] == [c.bt.to_json() for c in two.candidates]
+    entries = [sorted(str(e.relative_to(c)) for e in c.glob("*/*")) for c in
+               (tmp_path / "one", tmp_path / "two")]
+    assert entries[0] == entries[1]  # the workers refined the same trees, no other
+
+
 def test_a_searchs_restarts_stop_between_rounds_and_resume_from_the_cache(agents, tmp_path):
     import ibt
 

@@ -9,7 +9,8 @@ With the structure search (discrete actions), over the leaf limits (the rungs):
    winner) at the rungs below that one, every rung when none kept the target, in the order of
    a binary search for the smallest rung whose searched BT keeps the target.
 3. **refine** by return the distilled trees that kept the target, where no smaller rung did:
-   pruning may shrink their BT.
+   pruning may shrink their BT. Cores beyond the first refinement refine the next ones
+   alongside (their steps then read the cache).
 
 Distillation is cheap next to the by-return steps, so on a task where a small tree imitates
 the agent well the answer comes in seconds. Refinement is not run before a search: the search
@@ -394,11 +395,13 @@ def _search_ladder(out: Ladder, step: Callable[..., Any], cfg: Config, agent: Ag
         bisection(below, probe)
         if any(_kept_at(out, leaves, settings) for leaves in below):
             keepers = []  # a smaller rung kept the target
-    for leaves, name in keepers:
-        step(f"refine {name} at {leaves} leaves", partial(
-            refine.refine, cfg, agent, name, distilled[leaves][name], settings.seed,
-            settings.scale, settings.refine_episodes), leaves, "refined", name,
-            episodes=_refine_length(cfg, agent, settings))
+    ahead = [(name, distilled[leaves][name]) for leaves, name in keepers[:settings.n_jobs]]
+    for i, (leaves, name) in enumerate(keepers):
+        make = partial(refine.refine, cfg, agent, name, distilled[leaves][name], settings.seed,
+                       settings.scale, settings.refine_episodes)
+        step(f"refine {name} at {leaves} leaves", partial(_alongside, make, cfg, agent,
+                                                          settings, ahead) if i == 0 else make,
+             leaves, "refined", name, episodes=_refine_length(cfg, agent, settings))
 
 
 def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Settings,
@@ -419,16 +422,26 @@ def _refine_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
     """``tree`` (the first learner's at the block's first rung) refined, every distilled
     tree of the block refined alongside on the local cores (their steps then read the cache)."""
     jobs = [(leaves, learner) for leaves in block for learner in learners]
-    if settings.n_jobs > 1 and len(jobs) > 1:
+    quiet = replace(cfg, progress=False)
+    trees = [(learner, distil.distil(quiet, agent, leaves, settings.seed, learner))
+             for leaves, learner in jobs] if settings.n_jobs > 1 and len(jobs) > 1 else []  # cached
+    return _alongside(partial(refine.refine, cfg, agent, learners[0], tree, settings.seed,
+                              settings.scale, settings.refine_episodes), cfg, agent, settings,
+                      trees)
+
+
+def _alongside(first: Callable[[], Any], cfg: Config, agent: Agent, settings: Settings,
+               trees: list[tuple[str, Any]]) -> Any:
+    """``first()`` (a refinement among ``trees``, ``(learner, tree)`` pairs), after every tree
+    of ``trees`` is refined at once on the local cores and cached: the same refinements, the
+    steps that follow read them from the cache."""
+    if settings.n_jobs > 1 and len(trees) > 1:
         quiet = replace(cfg, progress=False)
-        trees = [(learner, distil.distil(quiet, agent, leaves, settings.seed, learner))
-                 for leaves, learner in jobs]  # read from the cache
         parallel_map(refine.refine, [(quiet, agent, learner, t, settings.seed, settings.scale,
                                       settings.refine_episodes, settings.env_modules)
                                      for learner, t in trees],
-                     n_jobs=min(settings.n_jobs, len(jobs)))
-    return refine.refine(cfg, agent, learners[0], tree, settings.seed, settings.scale,
-                         settings.refine_episodes)
+                     n_jobs=min(settings.n_jobs, len(trees)))
+    return first()
 
 
 def _refine_length(cfg: Config, agent: Agent, settings: Settings) -> float:
