@@ -15,7 +15,13 @@ from hypothesis import strategies as st
 
 from ibt.bt.linear import LinearForm, ObliqueForm, form_from_json, linear_form, script_sum
 from ibt.bt.model import Action, BehaviorTree, Commands, Condition, Selector, Sequence
-from ibt.distill.controller import ControllerArrays, fit_model_tree, sparse_fit, widen
+from ibt.distill.controller import (
+    ControllerArrays,
+    fit_model_tree,
+    grow_best_first,
+    sparse_fit,
+    widen,
+)
 from ibt.synth.controller import check_states, controller_bt
 from ibt.tasks.catalogue import get_task
 
@@ -319,3 +325,51 @@ def test_a_tree_with_nothing_to_tune_is_kept_as_it_is():
     record = refine_controller(one_leaf, task, config, progress=False)
     assert record.stages[0]["generations"] == 0
     assert np.array_equal(record.candidates[record.best_index].action, one_leaf.action)
+
+
+@given(st.integers(1, 200), st.integers(1, 12), st.integers(0, 2**32 - 1))
+@settings(max_examples=60, deadline=None)
+def test_best_first_growth_partitions_the_rows_and_splits_the_largest_gain_first(
+        n_rows, max_leaves, seed):
+    """The growth both learners share: children partition their parent's rows, at most
+    ``max_leaves`` leaves, every split taken had the largest gain on offer (the leaf made
+    first on a tie), and growth stops only at the limit or where no leaf can split."""
+    rng = np.random.default_rng(seed)
+    values = rng.normal(size=n_rows)
+    gains = rng.integers(0, 3, size=n_rows)  # ties are common
+
+    def propose(rows):
+        if len(rows) < 2:
+            return None
+        return float(gains[rows].sum()), None, float(np.median(values[rows]))
+
+    taken = []
+
+    def goes_left(rows, _, threshold):
+        taken.append(float(gains[rows].sum()))
+        left = values[rows] <= threshold
+        return left if 0 < left.sum() < len(rows) else np.arange(len(rows)) < len(rows) // 2
+
+    nodes = grow_best_first(n_rows, max_leaves, propose, goes_left)
+    leaves = [n for n in nodes if "split" not in n]
+    assert len(leaves) <= max_leaves
+    for node in nodes:
+        if "split" in node:
+            children = np.concatenate([nodes[node["left"]]["rows"], nodes[node["right"]]["rows"]])
+            assert sorted(children) == sorted(node["rows"])
+    assert sorted(np.concatenate([n["rows"] for n in leaves])) == list(range(n_rows))
+    if len(leaves) < max_leaves:
+        assert all(len(n["rows"]) < 2 for n in leaves)
+    split_order = [n for n in range(len(nodes)) if "split" in nodes[n]]
+    assert len(taken) == len(split_order)
+    # each split had the largest gain among the leaves on offer at its turn
+    offered = {0}
+    for gain, node in zip(taken, sorted(split_order, key=lambda k: nodes[k]["left"]), strict=True):
+        on_offer = [float(gains[nodes[n]["rows"]].sum()) for n in sorted(offered)
+                    if len(nodes[n]["rows"]) >= 2]
+        assert gain == max(on_offer)
+        first = min(n for n in sorted(offered) if len(nodes[n]["rows"]) >= 2
+                    and float(gains[nodes[n]["rows"]].sum()) == gain)
+        assert node == first
+        offered.remove(node)
+        offered |= {nodes[node]["left"], nodes[node]["right"]}

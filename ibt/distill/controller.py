@@ -275,43 +275,57 @@ def sparse_fit(x: np.ndarray, y: np.ndarray, max_terms: int) -> tuple[float, np.
     return bias, weights
 
 
-def fit_model_tree(x: np.ndarray, y: np.ndarray, max_leaves: int, *, max_terms: int = MAX_TERMS,
-                   min_leaf: int | None = None) -> ControllerArrays:
-    """A model tree of at most ``max_leaves`` leaves on widened features ``x`` and action
-    vectors ``y`` ``(n, D)``: best-first splits (see the module docstring)."""
-    x, y = widen(x), np.asarray(y, dtype=np.float64).reshape(len(x), -1)
-    min_leaf = min_leaf or max(20, len(x) // (8 * max_leaves))
-    nodes: list[dict[str, Any]] = [{"rows": np.arange(len(x))}]
+def grow_best_first(n_rows: int, max_leaves: int,
+                    propose: Callable[[np.ndarray], tuple[float, Any, float] | None],
+                    goes_left: Callable[[np.ndarray, Any, float], np.ndarray]
+                    ) -> list[dict[str, Any]]:
+    """The nodes of a tree grown best first to at most ``max_leaves`` leaves: every leaf's
+    best split is proposed once (``propose(rows)``: ``(gain, split, threshold)`` or None), the
+    leaf of the largest gain is split (ties: the leaf made first), ``goes_left(rows, split,
+    threshold)`` sends its rows. Each node holds its ``rows``; a split node also its
+    ``split``, ``threshold`` and the indices of its ``left`` and ``right`` children."""
+    nodes: list[dict[str, Any]] = [{"rows": np.arange(n_rows)}]
     frontier = [0]
-    proposals: dict[int, tuple[float, int, float] | None] = {}
+    proposals: dict[int, tuple[float, Any, float] | None] = {}
     while len(frontier) < max_leaves:
         for node in frontier:
             if node not in proposals:
-                rows = nodes[node]["rows"]
-                proposals[node] = _best_split(x[rows], y[rows], min_leaf)
+                proposals[node] = propose(nodes[node]["rows"])
         ready = [(found[0], n) for n in frontier if (found := proposals[n]) is not None]
         if not ready:
             break
         _, node = max(ready, key=lambda item: (item[0], -item[1]))
         chosen = proposals[node]
         assert chosen is not None
-        _, feature, threshold = chosen
+        _, split, threshold = chosen
         rows = nodes[node]["rows"]
-        goes_left = x[rows, feature] <= threshold
-        nodes[node].update(feature=feature, threshold=threshold,
+        left = goes_left(rows, split, threshold)
+        nodes[node].update(split=split, threshold=threshold,
                            left=len(nodes), right=len(nodes) + 1)
-        nodes.append({"rows": rows[goes_left]})
-        nodes.append({"rows": rows[~goes_left]})
+        nodes.append({"rows": rows[left]})
+        nodes.append({"rows": rows[~left]})
         frontier.remove(node)
         frontier += [len(nodes) - 2, len(nodes) - 1]
+    return nodes
+
+
+def fit_model_tree(x: np.ndarray, y: np.ndarray, max_leaves: int, *, max_terms: int = MAX_TERMS,
+                   min_leaf: int | None = None) -> ControllerArrays:
+    """A model tree of at most ``max_leaves`` leaves on widened features ``x`` and action
+    vectors ``y`` ``(n, D)``: best-first splits (see the module docstring)."""
+    x, y = widen(x), np.asarray(y, dtype=np.float64).reshape(len(x), -1)
+    min_leaf = min_leaf or max(20, len(x) // (8 * max_leaves))
+    nodes = grow_best_first(len(x), max_leaves,
+                            lambda rows: _best_split(x[rows], y[rows], min_leaf),
+                            lambda rows, feature, threshold: x[rows, feature] <= threshold)
     n, n_features, n_dims = len(nodes), x.shape[1], y.shape[1]
     arrays = ControllerArrays(np.full(n, -1, np.int64), np.full(n, -1, np.int64),
                               np.zeros((n, n_features)), np.zeros(n), np.zeros((n, n_dims)),
                               np.zeros((n, n_dims, n_features)))
     for k, entry in enumerate(nodes):
-        if "feature" in entry:
+        if "split" in entry:  # a feature's index
             arrays.left[k], arrays.right[k] = entry["left"], entry["right"]
-            arrays.split[k, entry["feature"]] = 1.0
+            arrays.split[k, entry["split"]] = 1.0
             arrays.threshold[k] = entry["threshold"]
             continue
         rows = entry["rows"]

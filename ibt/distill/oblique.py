@@ -23,7 +23,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ibt.bt.linear import MAX_TERMS
-from ibt.distill.controller import ControllerConfig, SplitTree, split_value, widen
+from ibt.distill.controller import (
+    ControllerConfig,
+    SplitTree,
+    grow_best_first,
+    split_value,
+    widen,
+)
 from ibt.distill.loop import Distillation, interactive_loop, mix
 from ibt.experts.expert import Expert
 from ibt.tasks.task import Task
@@ -123,38 +129,23 @@ def fit_oblique_tree(x: np.ndarray, y: np.ndarray, n_classes: int, max_leaves: i
     """An oblique tree of at most ``max_leaves`` leaves (see the module docstring)."""
     x, y = widen(x), np.asarray(y, dtype=np.int64)
     min_leaf = min_leaf or max(10, len(x) // (20 * max_leaves))
-    nodes: list[dict[str, Any]] = [{"rows": np.arange(len(x))}]
-    frontier = [0]
-    proposals: dict[int, tuple[float, np.ndarray, float] | None] = {}
-    while len(frontier) < max_leaves:
-        for node in frontier:
-            if node in proposals:
-                continue
-            rows = nodes[node]["rows"]
-            best: tuple[float, np.ndarray, float] | None = None
-            directions = [np.eye(x.shape[1])[f] for f in range(x.shape[1])]
-            if len(np.unique(y[rows])) > 1 and max_terms > 1:
-                directions += _oblique_directions(x[rows], y[rows], n_classes, max_terms)
-            for w in directions:
-                found = _gini_cut(split_value(np.broadcast_to(w, (len(rows), len(w))),
-                                              x[rows]), y[rows], n_classes, min_leaf)
-                if found is not None and (best is None or found[0] > best[0] + 1e-9):
-                    best = (found[0], w, found[1])
-            proposals[node] = best if best is not None and best[0] > 0 else None
-        ready = [(p[0], n) for n in frontier if (p := proposals[n]) is not None]
-        if not ready:
-            break
-        _, node = max(ready, key=lambda item: (item[0], -item[1]))
-        chosen = proposals[node]
-        assert chosen is not None
-        _, w, threshold = chosen
-        rows = nodes[node]["rows"]
-        goes_left = split_value(np.broadcast_to(w, (len(rows), len(w))), x[rows]) <= threshold
-        nodes[node].update(split=w, threshold=threshold, left=len(nodes), right=len(nodes) + 1)
-        nodes.append({"rows": rows[goes_left]})
-        nodes.append({"rows": rows[~goes_left]})
-        frontier.remove(node)
-        frontier += [len(nodes) - 2, len(nodes) - 1]
+
+    def propose(rows: np.ndarray) -> tuple[float, np.ndarray, float] | None:
+        best: tuple[float, np.ndarray, float] | None = None
+        directions = [np.eye(x.shape[1])[f] for f in range(x.shape[1])]
+        if len(np.unique(y[rows])) > 1 and max_terms > 1:
+            directions += _oblique_directions(x[rows], y[rows], n_classes, max_terms)
+        for w in directions:
+            found = _gini_cut(split_value(np.broadcast_to(w, (len(rows), len(w))), x[rows]),
+                              y[rows], n_classes, min_leaf)
+            if found is not None and (best is None or found[0] > best[0] + 1e-9):
+                best = (found[0], w, found[1])
+        return best if best is not None and best[0] > 0 else None
+
+    def goes_left(rows: np.ndarray, w: np.ndarray, threshold: float) -> np.ndarray:
+        return split_value(np.broadcast_to(w, (len(rows), len(w))), x[rows]) <= threshold
+
+    nodes = grow_best_first(len(x), max_leaves, propose, goes_left)
     n = len(nodes)
     tree = ObliqueArrays(np.full(n, -1, np.int64), np.full(n, -1, np.int64),
                          np.zeros((n, x.shape[1])), np.zeros(n), np.full(n, -1, np.int64))
