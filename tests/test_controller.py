@@ -373,3 +373,42 @@ def test_best_first_growth_partitions_the_rows_and_splits_the_largest_gain_first
         assert node == first
         offered.remove(node)
         offered |= {nodes[node]["left"], nodes[node]["right"]}
+
+
+@given(st.integers(1, 60), st.integers(1, 5), st.integers(1, 3), st.integers(1, 40),
+       st.integers(0, 2**32 - 1))
+@settings(max_examples=60, deadline=None)
+def test_the_split_searchs_running_sums_held_a_block_at_a_time_are_one_running_sum(
+        n_rows, n_features, n_dims, block, seed):
+    """Bounded memory without a changed bit: the running sums of ``z z^T``, ``z y^T`` and
+    ``y . y`` read at any rows, a few rows at a time, equal NumPy's one running sum over all
+    rows exactly, and so do the sums resumed from a carry."""
+    import ibt.distill.controller as controller
+
+    rng = np.random.default_rng(seed)
+    zs, ys = rng.normal(size=(n_rows, n_features)) * 1e3, rng.normal(size=(n_rows, n_dims))
+    whole = (np.cumsum(zs[:, :, None] * zs[:, None, :], axis=0),
+             np.cumsum(zs[:, :, None] * ys[:, None, :], axis=0), np.cumsum((ys * ys).sum(axis=1)))
+    sums = controller._RunningSums(zs, ys)
+    sums.block = block
+    rows = np.unique(rng.integers(0, n_rows, size=rng.integers(1, n_rows + 1)))
+    for got, want in zip(sums.at(rows), whole, strict=True):
+        assert np.array_equal(got, want[rows])
+    start = int(rows[0]) + 1
+    later = rows[rows >= start - 1]
+    resumed = sums.at(later, start, tuple(w[start - 1] for w in whole))
+    for got, want in zip(resumed, whole, strict=True):
+        assert np.array_equal(got, want[later])
+
+
+def test_a_model_tree_is_the_same_whatever_the_block_of_its_running_sums(monkeypatch):
+    import ibt.distill.controller as controller
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(900, 5)).astype(np.float32)
+    y = np.tanh(x[:, :2] @ np.array([[1.0, -0.5], [0.3, 2.0]]) + (x[:, 2:3] > 0.2))
+    default = fit_model_tree(x, y, 6)
+    monkeypatch.setattr(controller, "BLOCK_BYTES", 3000)  # a few rows a block
+    small = fit_model_tree(x, y, 6)
+    for name in ("left", "right", "split", "threshold", "bias", "weights"):
+        assert np.array_equal(getattr(default, name), getattr(small, name)), name
