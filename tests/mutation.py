@@ -60,6 +60,8 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
                         "tests/test_bt.py",
                         "tests/test_nonfinite.py", "tests/test_mutants.py"),
     "ibt/bt/coverage.py": ("tests/test_bt.py",),
+    # its own laws; the files importing it (the CLI, the grid, Box tasks) take minutes a mutant
+    "ibt/synth/registry.py": ("tests/test_synth_registry.py",),
     "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
                                "tests/test_synthesis.py"),
     "ibt/synth/rules.py": ("tests/test_rules_logic.py", "tests/test_verification_law.py",
