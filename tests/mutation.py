@@ -60,6 +60,12 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
                         "tests/test_bt.py",
                         "tests/test_nonfinite.py", "tests/test_mutants.py"),
     "ibt/bt/coverage.py": ("tests/test_bt.py",),
+    # its own laws; the files importing it (the CLI, the grid, Box tasks) take minutes a mutant
+    "ibt/synth/registry.py": ("tests/test_synth_registry.py",),
+    # the reader's own laws; its importers (the CLI, the views, the engines) take minutes
+    "ibt/bt/json_io.py": ("tests/test_json_io.py",),
+    # merging leaves into commands on hand-made trees; its importers distil an expert's tree
+    "ibt/synth/commands.py": ("tests/test_commands.py",),
     "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
                                "tests/test_synthesis.py"),
     "ibt/synth/rules.py": ("tests/test_rules_logic.py", "tests/test_verification_law.py",
@@ -137,6 +143,9 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "a tree of one output (every tree ibt distils; a multi-output tree's classes cannot be "
      "read as actions at all) has one row of class weights per node, which `[0]` and `[-1]` "
      "both name"),
+    ("ibt/bt/json_io.py", "data = fh.read(MAX_BT_BYTES + 1)",
+     "data = fh.read(MAX_BT_BYTES | 1)",
+     "`MAX_BT_BYTES` is `64 << 20`, an even number, so `| 1` and `+ 1` give the same size"),
 )
 
 #: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.
