@@ -146,7 +146,7 @@ def run(case: Case) -> dict[str, object]:
         "met": (match.group(3) == "meets") if match else None,
         "stopped_by_time": "--time budget ended" in said, "cpus": os.cpu_count(),
         "jobs": int(jobs) if jobs else os.cpu_count(),
-        "load_before": round(load, 2), "peak_rss_mb": peak_mb}
+        "load_before": round(load, 2), "peak_rss_mb": peak_mb, "commit": _commit()}
     if not match:
         row["error"] = said.strip().splitlines()[-1] if said.strip() else "no output"
     if case.full and match:
@@ -158,6 +158,16 @@ def run(case: Case) -> dict[str, object]:
     if case.confirm and match:
         row.update(confirm(case, out / "bt.json", case.confirm))
     return row
+
+
+def _commit() -> str:
+    """The commit the run measured (``+changes`` when the work tree differed from it), so a
+    row says which code made it."""
+    head = subprocess.run(["git", "rev-parse", "--short=8", "HEAD"], cwd=ROOT,
+                          capture_output=True, text=True).stdout.strip()
+    changed = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
+                              "ibt"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    return head + ("+changes" if changed else "")
 
 
 def _measured(argv: list[str], env: dict[str, str]
