@@ -242,8 +242,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="seeds of each structure search, chosen among on held-out episodes "
                     "(default 3); the ladder's last search spends time left over on up to 4K")
     pl.add_argument("--jobs", type=JOBS, default=None, metavar="N",
-                    help="processes for the restarts (default: the machine's cores; a Dask "
-                    "cluster when IBT_DASK_SCHEDULER holds its address)")
+                    help="processes for the work run side by side: distillations, "
+                    "refinements and a search's restarts, each with its progress on a line under "
+                    "the pipeline's (default: the machine's cores; a Dask cluster when "
+                    "IBT_DASK_SCHEDULER holds its address)")
     pl.add_argument("--budget", type=budget_arg, default="1x",
                     help="smoke (seconds), a scale of every step's episode budget such as 2x, "
                     "or refinement episodes per tree such as 40000 (default 1x)")

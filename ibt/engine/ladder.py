@@ -410,10 +410,9 @@ def _distil_block(cfg: Config, agent: Agent, block: list[int], settings: Setting
     the block distilled alongside on the local cores (their steps then read the cache)."""
     jobs = [(leaves, learner) for leaves in block for learner in learners]
     if settings.n_jobs > 1 and len(jobs) > 1:
-        quiet = replace(cfg, progress=False)
-        parallel_map(distil.distil, [(quiet, agent, leaves, settings.seed, learner,
+        parallel_map(distil.distil, [(cfg, agent, leaves, settings.seed, learner,
                                       settings.env_modules) for leaves, learner in jobs],
-                     n_jobs=min(settings.n_jobs, len(jobs)))
+                     n_jobs=min(settings.n_jobs, len(jobs)), progress=cfg.progress)
     return distil.distil(cfg, agent, block[0], settings.seed, learners[0])
 
 
@@ -436,11 +435,10 @@ def _alongside(first: Callable[[], Any], cfg: Config, agent: Agent, settings: Se
     of ``trees`` is refined at once on the local cores and cached: the same refinements, the
     steps that follow read them from the cache."""
     if settings.n_jobs > 1 and len(trees) > 1:
-        quiet = replace(cfg, progress=False)
-        parallel_map(refine.refine, [(quiet, agent, learner, t, settings.seed, settings.scale,
+        parallel_map(refine.refine, [(cfg, agent, learner, t, settings.seed, settings.scale,
                                       settings.refine_episodes, settings.env_modules)
                                      for learner, t in trees],
-                     n_jobs=min(settings.n_jobs, len(trees)))
+                     n_jobs=min(settings.n_jobs, len(trees)), progress=cfg.progress)
     return first()
 
 

@@ -11,6 +11,7 @@ resolve as they do here; loky reuses its workers, so this is done for every item
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
@@ -61,30 +62,53 @@ def dask_client(address: str, timeout: float | None = None) -> Any:
     raise RuntimeError(f"{said} ({why}); {fix}") from None
 
 
-def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_jobs: int = 1
-                 ) -> list[Any]:
+def parallel_map(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], *, n_jobs: int = 1,
+                 progress: bool = False) -> list[Any]:
     """``[fn(*a) for a in args]``: in this process where one job or one item suffices, else
-    over ``n_jobs`` local processes, or the Dask scheduler at ``$IBT_DASK_SCHEDULER``."""
+    over ``n_jobs`` local processes, or the Dask scheduler at ``$IBT_DASK_SCHEDULER``.
+    ``progress``: the progress bars the items draw (their configuration asks for them) are
+    shown, a local worker's as a line under the caller's bar
+    (:mod:`ibt.engine.worker_progress`), a cluster's nowhere."""
     address = os.environ.get(DASK_ENV)
     if len(args) <= 1 or (n_jobs <= 1 and not address):
         return [fn(*a) for a in args]
-    from joblib import Parallel, delayed, parallel_config
+    from ibt.engine.worker_progress import WorkerBars, reporting
 
+    bars = WorkerBars(len(args), n_jobs) if progress and not address else None
+    if progress:
+        args = [(bars.path(i) if bars else None, fn, *a) for i, a in enumerate(args)]
+        fn = reporting
     here = (os.getcwd(), [os.path.abspath(p) if p else os.getcwd() for p in sys.path])
     args = [(here, fn, *a) for a in args]
-    fn = _here
     if address:
-        client = dask_client(address)
-        try:
-            with parallel_config(backend="dask"):
-                return list(Parallel(n_jobs=-1)(delayed(fn)(*a) for a in args))
-        except (OSError, TimeoutError) as err:  # the cluster, not the work: name where it is
-            why = " ".join(f"{type(err).__name__}: {err}".split())[:200]
-            raise RuntimeError(f"{DASK_ENV}={address}: the Dask cluster failed ({why}); check "
-                               f"the scheduler and its workers, or unset {DASK_ENV} to run on "
-                               "this machine's cores") from None
-        finally:
-            client.close()
+        return _on_cluster(address, _here, args)
+    with bars if bars is not None else contextlib.nullcontext():
+        return _on_local_cores(_here, args, n_jobs)
+
+
+def _on_cluster(address: str, fn: Callable[..., Any], args: Sequence[tuple[Any, ...]]
+                ) -> list[Any]:
+    """``[fn(*a) for a in args]`` on the Dask cluster whose scheduler is at ``address``."""
+    from joblib import Parallel, delayed, parallel_config
+
+    client = dask_client(address)
+    try:
+        with parallel_config(backend="dask"):
+            return list(Parallel(n_jobs=-1)(delayed(fn)(*a) for a in args))
+    except (OSError, TimeoutError) as err:  # the cluster, not the work: name where it is
+        why = " ".join(f"{type(err).__name__}: {err}".split())[:200]
+        raise RuntimeError(f"{DASK_ENV}={address}: the Dask cluster failed ({why}); check "
+                           f"the scheduler and its workers, or unset {DASK_ENV} to run on "
+                           "this machine's cores") from None
+    finally:
+        client.close()
+
+
+def _on_local_cores(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], n_jobs: int
+                    ) -> list[Any]:
+    """``[fn(*a) for a in args]`` over ``n_jobs`` loky processes."""
+    from joblib import Parallel, delayed, parallel_config
+
     with parallel_config(backend="loky", n_jobs=n_jobs), warnings.catch_warnings():
         # loky replaces a worker that its idle timeout stopped while a round of long items ran
         # (LunarLander's restarts) and warns of it: the items run on, nothing to tell a user

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import replace
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -45,11 +44,10 @@ def polish_again(cfg: Config, agent: Agent, tree: Any, leaves: int, seed: int,
     choice = selection_seeds(search.choice_episodes(config), seed,
                              offset=search.RESTART_CHOICE_OFFSET)
     method = search.SEARCHED_REL if relational else search.SEARCHED
-    quiet = replace(cfg, progress=cfg.progress and len(seeds) == 1)
     polish = budgets.again_config(cfg, agent.task, leaves, scale)
-    polished = parallel_map(search.polish_one, [(quiet, agent, s, method, tree, polish,
+    polished = parallel_map(search.polish_one, [(cfg, agent, s, method, tree, polish,
                                                  env_modules) for s in seeds],
-                            n_jobs=processes(n_jobs, len(seeds)))
+                            n_jobs=processes(n_jobs, len(seeds)), progress=cfg.progress)
     trees = [tree, *polished]
     means = parallel_map(search.choice_mean, [(cfg, agent, t, choice, env_modules)
                                               for t in trees],

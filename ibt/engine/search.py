@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from ibt.cache.store import load_or_compute, tree_digest
@@ -128,7 +128,6 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
         next_round, most, enough = None, exactly, None
     else:
         most = restarts if next_round is None else max(restarts, most or restarts)
-    quiet = replace(cfg, progress=cfg.progress and most == 1)
     width = max(1, min(n_jobs, most))
     choice = selection_seeds(choice_episodes(config), seed, offset=RESTART_CHOICE_OFFSET)
     trees: list[Any] = []
@@ -137,9 +136,9 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
         size = round_size(restarts - len(trees), width)
         batch = range(seed + len(trees), seed + min(most, len(trees) + size))
         began = time.monotonic()
-        records = parallel_map(evolve_one, [(quiet, agent, sources, config, s, relational,
+        records = parallel_map(evolve_one, [(cfg, agent, sources, config, s, relational,
                                              env_modules) for s in batch],
-                               n_jobs=processes(n_jobs, len(batch)))
+                               n_jobs=processes(n_jobs, len(batch)), progress=cfg.progress)
         seconds = time.monotonic() - began
         done = [_restart_winner(record, relational) for record in records]
         trees += done
@@ -157,9 +156,9 @@ def search(cfg: Config, agent: Agent, sources: list[Any], leaves: int, seed: int
     finalists = sorted(range(len(trees)),
                        key=lambda i: (-means[i], leaves_of(trees[i]), i))[:restarts]
     method, settings = SEARCHED_REL if relational else SEARCHED, budgets.polish_config(cfg, config)
-    polished = parallel_map(polish_one, [(quiet, agent, seeds[i], method, trees[i], settings,
+    polished = parallel_map(polish_one, [(cfg, agent, seeds[i], method, trees[i], settings,
                                           env_modules) for i in finalists],
-                            n_jobs=processes(n_jobs, len(finalists)))
+                            n_jobs=processes(n_jobs, len(finalists)), progress=cfg.progress)
     scores = parallel_map(choice_mean, [(cfg, agent, tree, choice, env_modules)
                                         for tree in polished],
                           n_jobs=processes(n_jobs, len(polished)))
