@@ -72,6 +72,8 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
                            "tests/test_mutants.py", "tests/test_synthesis.py"),
     "ibt/bt/document.py": ("tests/test_bt_document.py", "tests/test_bt_model_law.py",
                            "tests/test_relational_bt.py"),
+    # the workers' progress lines: in-process laws, then two loky workers (seconds)
+    "ibt/engine/worker_progress.py": ("tests/test_worker_progress.py",),
     # the arithmetic first; then the ladder's use of it (which trains agents: minutes)
     "ibt/engine/deadline.py": ("tests/test_deadline_law.py", "tests/test_deadline.py"),
     # in-process tests only: the CLI runs of test_hostile_files.py take minutes a mutant
