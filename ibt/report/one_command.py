@@ -1,0 +1,97 @@
+"""The one-command results: each benchmarked ``pipeline`` command confirmed on fresh episodes
+(``data/results/pipeline_bench.csv``, the LunarLander rows), its draws (``--seed``) summarised
+as the mean and range of the recommended BT's return, its sizes and its wall times.
+
+A ``--time`` run's steps depend on the machine's speed and load, so its draws differ by seed
+and by machine; the code each draw measured (its commit, where the benchmark recorded one) is
+listed beside it, since draws of different code are not draws of one command.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import pandas as pd
+
+from ibt.report.text import md
+
+_DRAW = re.compile(r"-seed\d+$")
+BEGIN = "<!-- one-command:begin (written by notebooks/09_report.ipynb) -->"
+END = "<!-- one-command:end -->"
+
+
+def options_of(row: Any) -> str:
+    """The benchmarked command's options beyond the task and the agent (``--leaves``,
+    ``--max-nodes``, ``--time``)."""
+    parts = []
+    if str(row.leaves) not in ("default", "", "nan"):
+        parts.append(f"--leaves {row.leaves}")
+    if pd.notna(row.max_nodes) and str(row.max_nodes) != "":
+        parts.append(f"--max-nodes {int(float(row.max_nodes))}")
+    parts.append(f"--time {row.time_limit}")
+    return " ".join(parts)
+
+
+def one_command_draws(bench: pd.DataFrame) -> pd.DataFrame:
+    """One row per confirmed command (cases named ``<case>-seed<k>`` are draws of ``<case>``),
+    in the benchmark's order: its seeds, the commits they measured, the BT's nodes and
+    confirmed return (mean of the draws, lowest, highest), the share of episodes >= 200 and
+    the wall times."""
+    confirmed = bench[pd.to_numeric(bench.confirm_mean, errors="coerce").notna()].copy()
+    if confirmed.empty:
+        return pd.DataFrame(columns=COLUMNS)
+    confirmed["command_case"] = confirmed.case.str.replace(_DRAW, "", regex=True)
+    confirmed["draw_seed"] = pd.to_numeric(confirmed.seed, errors="coerce").fillna(0).astype(int)
+    rows = []
+    for case, draws in confirmed.groupby("command_case", sort=False):
+        draws = draws.sort_values("draw_seed")
+        means = draws.confirm_mean.astype(float)
+        commits = draws.commit.fillna("").astype(str).replace("", "not recorded")
+        rows.append({
+            "case": case, "task": draws.task.iloc[0], "algo": draws.algo.iloc[0],
+            "options": options_of(draws.iloc[0]),
+            "seeds": ", ".join(str(s) for s in draws.draw_seed),
+            "commits": "; ".join(f"{s}: {c}" for s, c in zip(draws.draw_seed, commits,
+                                                              strict=True)),
+            "draws": len(draws), "episodes": int(draws.confirm_episodes.astype(float).min()),
+            "nodes_min": int(draws.bt_nodes.astype(float).min()),
+            "nodes_max": int(draws.bt_nodes.astype(float).max()),
+            "mean_return": float(means.mean()), "lowest_return": float(means.min()),
+            "highest_return": float(means.max()),
+            "share_200": float(draws.confirm_share_200.astype(float).mean()),
+            "wall_min_s": float(draws.wall_s.astype(float).min()),
+            "wall_max_s": float(draws.wall_s.astype(float).max())})
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+COLUMNS = ["case", "task", "algo", "options", "seeds", "commits", "draws", "episodes", "nodes_min",
+           "nodes_max", "mean_return", "lowest_return", "highest_return", "share_200",
+           "wall_min_s", "wall_max_s"]
+
+
+def _span(low: float, high: float, fmt: str) -> str:
+    return format(low, fmt) if format(low, fmt) == format(high, fmt) else (
+        f"{format(low, fmt)}-{format(high, fmt)}")
+
+
+def one_command_markdown(draws: pd.DataFrame) -> str:
+    """The table of :func:`one_command_draws`, for the README."""
+    lines = ["| task, agent | options | draws (`--seed`) | code measured (seed: commit) | "
+             "BT nodes | fresh episodes a draw | return: mean of draws (lowest-highest) | "
+             "episodes >= 200 (mean) | wall time, 2 cores |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for row in draws.itertuples():
+        spread = (f"{row.mean_return:.1f} ({row.lowest_return:.1f}-{row.highest_return:.1f})"
+                  if row.draws > 1 else f"{row.mean_return:.1f} (one draw)")
+        wall = _span(row.wall_min_s / 60, row.wall_max_s / 60, ".0f")
+        lines.append(f"| {md(row.task)} {md(row.algo)} | {md(row.options)} | {row.draws} "
+                     f"({row.seeds}) | {md(row.commits)} | "
+                     f"{_span(row.nodes_min, row.nodes_max, 'd')} | {row.episodes:,} | {spread} "
+                     f"| {100 * row.share_200:.1f} % | {wall} min |")
+    return "\n".join(lines)
+
+
+def one_command_block(bench: pd.DataFrame) -> str:
+    """The README's block, :data:`BEGIN` and :data:`END` included."""
+    return "\n".join([BEGIN, "", one_command_markdown(one_command_draws(bench)), "", END])

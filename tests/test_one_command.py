@@ -1,0 +1,62 @@
+"""The one-command results: a command's draws (``<case>-seed<k>``) are summarised together, the
+mean lies within its draws' range, text from the benchmark file is escaped, and the README's
+block is the one the committed benchmark gives."""
+
+from __future__ import annotations
+
+import pandas as pd
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ibt.paths import DATA_DIR, ROOT
+from ibt.report.one_command import BEGIN, END, one_command_block, one_command_draws
+
+
+def _row(case: str, seed: float | None, mean: float, nodes: int = 20, commit: str = "",
+         **fields) -> dict:
+    return {"case": case, "task": "LunarLander-v3", "algo": "ppo", "time_limit": "30m",
+            "leaves": "default", "max_nodes": None, "bt_nodes": float(nodes),
+            "confirm_mean": mean, "confirm_episodes": 1000.0, "confirm_share_200": 0.9,
+            "wall_s": 1800.0, "seed": seed, "commit": commit, **fields}
+
+
+def test_draws_of_one_command_are_one_row_and_unconfirmed_cases_none():
+    bench = pd.DataFrame([
+        _row("thermostat", 0.0, float("nan")),
+        _row("lunarlander-ppo-seed2", 2.0, 250.0, nodes=18, commit="abc12345"),
+        _row("lunarlander-ppo", None, 240.0, nodes=20),
+        _row("lunarlander-ppo-22", None, 260.0, leaves="22", time_limit="60m"),
+        _row("lunarlander-ppo-seed1", 1.0, 230.0, nodes=25, commit="abc12345"),
+    ])
+    draws = one_command_draws(bench)
+    assert list(draws.case) == ["lunarlander-ppo", "lunarlander-ppo-22"]
+    first = draws.iloc[0]
+    assert first.seeds == "0, 1, 2" and first.draws == 3
+    assert first.commits == "0: not recorded; 1: abc12345; 2: abc12345"
+    assert (first.nodes_min, first.nodes_max) == (18, 25)
+    assert first.mean_return == 240.0 and (first.lowest_return, first.highest_return) == (
+        230.0, 250.0)
+    assert first.options == "--time 30m"
+    assert draws.iloc[1].options == "--leaves 22 --time 60m"
+
+
+@given(st.lists(st.floats(-500, 500, allow_nan=False), min_size=1, max_size=6))
+def test_the_mean_of_draws_lies_within_their_range(means):
+    bench = pd.DataFrame([_row(f"lunarlander-dqn-seed{k}" if k else "lunarlander-dqn",
+                               float(k), m) for k, m in enumerate(means)])
+    row = one_command_draws(bench).iloc[0]
+    assert row.draws == len(means)
+    assert row.lowest_return - 1e-9 <= row.mean_return <= row.highest_return + 1e-9
+
+
+def test_text_from_the_benchmark_file_is_escaped():
+    bench = pd.DataFrame([_row("x", 0.0, 1.0, commit="<script>|", task="<b>Env|v0")])
+    block = one_command_block(bench)
+    assert "<script>" not in block and "<b>" not in block
+    assert "&lt;script&gt;\\|" in block and block.startswith(BEGIN) and block.endswith(END)
+
+
+def test_the_readme_block_is_the_committed_benchmarks():
+    bench = pd.read_csv(DATA_DIR / "results" / "pipeline_bench.csv")
+    readme = (ROOT / "README.md").read_text()
+    assert one_command_block(bench) in readme
