@@ -9,7 +9,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from ibt.paths import DATA_DIR, ROOT
-from ibt.report.one_command import BEGIN, END, one_command_block, one_command_draws
+from ibt.report.one_command import (
+    BEGIN,
+    END,
+    one_command_block,
+    one_command_draws,
+    small_tasks_markdown,
+)
 
 
 def _row(case: str, seed: float | None, mean: float, nodes: int = 20, commit: str = "",
@@ -17,7 +23,8 @@ def _row(case: str, seed: float | None, mean: float, nodes: int = 20, commit: st
     return {"case": case, "task": "LunarLander-v3", "algo": "ppo", "time_limit": "30m",
             "leaves": "default", "max_nodes": None, "bt_nodes": float(nodes),
             "confirm_mean": mean, "confirm_episodes": 1000.0, "confirm_share_200": 0.9,
-            "wall_s": 1800.0, "seed": seed, "commit": commit, **fields}
+            "wall_s": 1800.0, "seed": seed, "commit": commit, "retention_confirmed": 99.0,
+            "learner": "oblique", **fields}
 
 
 def test_draws_of_one_command_are_one_row_and_unconfirmed_cases_none():
@@ -50,10 +57,21 @@ def test_the_mean_of_draws_lies_within_their_range(means):
 
 
 def test_text_from_the_benchmark_file_is_escaped():
-    bench = pd.DataFrame([_row("x", 0.0, 1.0, commit="<script>|", task="<b>Env|v0")])
+    bench = pd.DataFrame([_row("x", 0.0, 1.0, commit="<script>|", task="<b>Env|v0"),
+                          _row("y", 0.0, float("nan"), time_limit="10m", learner="<i>")])
     block = one_command_block(bench)
-    assert "<script>" not in block and "<b>" not in block
+    assert "<script>" not in block and "<b>" not in block and "<i>" not in block
     assert "&lt;script&gt;\\|" in block and block.startswith(BEGIN) and block.endswith(END)
+
+
+def test_small_tasks_are_the_default_time_and_count_the_steering_learners():
+    bench = pd.DataFrame([_row("a", 0.0, float("nan"), time_limit="10m", learner="axis"),
+                          _row("b", 0.0, float("nan"), time_limit="600", learner="controller"),
+                          _row("c", 0.0, float("nan"), time_limit="15m", learner="oblique"),
+                          _row("d", 0.0, 250.0, time_limit="10m", learner="oblique")])
+    text = small_tasks_markdown(bench)
+    assert text.count("| LunarLander-v3 ppo |") == 2  # a and b: 15m and confirmed left out
+    assert "made 1 of these 2 BTs" in text
 
 
 def test_the_readme_block_is_the_committed_benchmarks():

@@ -1,6 +1,7 @@
-"""The one-command results: each benchmarked ``pipeline`` command confirmed on fresh episodes
-(``data/results/pipeline_bench.csv``, the LunarLander rows), its draws (``--seed``) summarised
-as the mean and range of the recommended BT's return, its sizes and its wall times.
+"""The one-command results of the pipeline's benchmark (``data/results/pipeline_bench.csv``):
+the small tasks run at the default time (wall time, BT, retention, the learner that made it),
+and each command confirmed on fresh episodes (the LunarLander rows), its draws (``--seed``)
+summarised as the mean and range of the recommended BT's return, its sizes and wall times.
 
 A ``--time`` run's steps depend on the machine's speed and load, so its draws differ by seed
 and by machine; the code each draw measured (its commit, where the benchmark recorded one) is
@@ -92,6 +93,36 @@ def one_command_markdown(draws: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def small_tasks(bench: pd.DataFrame) -> pd.DataFrame:
+    """The cases run at the pipeline's default time and not confirmed further: the small
+    tasks a user meets first."""
+    from ibt.cli.checks import duration_arg
+    from ibt.pipeline.recommend import DEFAULT_TIME
+
+    confirmed = pd.to_numeric(bench.confirm_mean, errors="coerce").notna()
+    default = bench.time_limit.astype(str).map(duration_arg) == DEFAULT_TIME
+    return bench[default & ~confirmed]
+
+
+def small_tasks_markdown(bench: pd.DataFrame) -> str:
+    """The small tasks' table, and how many BTs the learners that steer made."""
+    from ibt.runs.controllers import OURS
+
+    rows = small_tasks(bench)
+    lines = ["| task, agent | wall time, 2 cores | BT nodes | retention (held-out episodes) | "
+             "learner of the BT |", "|---|---|---|---|---|"]
+    for row in rows.itertuples():
+        lines.append(f"| {md(row.task)} {md(row.algo)} | {float(row.wall_s):.0f} s | "
+                     f"{int(float(row.bt_nodes))} | {float(row.retention_confirmed):.1f} % | "
+                     f"{md(row.learner)} |")
+    steering = int(rows.learner.isin(OURS).sum())
+    names = " and ".join(f"`{name}`" for name in sorted(OURS))
+    return "\n".join([*lines, "", f"The learners that steer ({names}: linear commands, "
+                       f"tests over up to four features) made {steering} of these {len(rows)} "
+                       "BTs."])
+
+
 def one_command_block(bench: pd.DataFrame) -> str:
     """The README's block, :data:`BEGIN` and :data:`END` included."""
-    return "\n".join([BEGIN, "", one_command_markdown(one_command_draws(bench)), "", END])
+    return "\n".join([BEGIN, "", small_tasks_markdown(bench), "",
+                       one_command_markdown(one_command_draws(bench)), "", END])
