@@ -36,6 +36,18 @@ def test_the_built_in_learners_in_the_ladders_order_with_their_kinds():
     assert rank("axis") < rank("relational")
 
 
+@pytest.mark.parametrize("first", ["ibt.engine.controller_learners", "ibt.engine.learners"])
+def test_the_registry_is_the_same_whichever_module_is_imported_first(first):
+    import subprocess
+    import sys
+
+    said = subprocess.run([sys.executable, "-c", f"import {first}; from ibt.engine.learners "
+                           "import LEARNERS; print(' '.join(LEARNERS))"],
+                          capture_output=True, text=True, check=False)
+    assert said.returncode == 0, said.stderr
+    assert said.stdout.split() == ["axis", "relational", "box", "oblique", "controller"]
+
+
 @pytest.mark.parametrize(("continuous", "n_features", "combined", "offered"), [
     (False, 4, True, ("axis", "relational", "oblique")),
     (False, 4, False, ("axis",)),  # tests that combine features off

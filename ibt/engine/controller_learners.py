@@ -10,7 +10,8 @@ one verified BT of one rule per leaf (:mod:`ibt.synth.controller`), rolled out a
 
 This module is the model of a learner added to the engine: its settings, loop, cached
 refinement and BT layout beside its :class:`ibt.engine.learners.Learner` entries
-(:data:`LEARNERS`), which :data:`ibt.engine.learners.BUILT_IN` registers.
+(:data:`LEARNERS`), registered when it is imported (:data:`ibt.engine.learners.BUILT_IN`
+imports it).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 from ibt.cache.store import load_or_compute
 from ibt.engine import budgets
 from ibt.engine.agent import Agent
-from ibt.engine.learners import BOX, DISCRETE, Learner
+from ibt.engine.learners import BOX, DISCRETE, Learner, register_learner
 from ibt.profiles import Config
 from ibt.tasks.task import Task
 
@@ -115,7 +116,7 @@ def _lay_out(agent: Agent, tree: Any, seed: int) -> dict[str, Any]:
     return {SYNTHESISER: controller_bt(tree, agent.task, states).bt}
 
 
-#: the two entries, registered by :data:`ibt.engine.learners.BUILT_IN` in this order
+#: the two entries, registered in this order
 LEARNERS = (
     Learner("oblique", DISCRETE, "controller-distil", "json", _settings, _fit, _tree, _refine,
             min_features=2, combines_features=True, lay_out=_lay_out,
@@ -126,3 +127,5 @@ LEARNERS = (
             trees=("ibt.distill.controller.ControllerArrays",), measured_as_bt=True,
             description="tests of up to four features and commands linear in up to four"),
 )
+for _entry in LEARNERS:
+    register_learner(_entry)

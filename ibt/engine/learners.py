@@ -266,8 +266,8 @@ for _entry in (
 ):
     register_learner(_entry)
 
-#: the built-in learners defined in modules of their own, registered after the ones above
+#: the built-in learners defined in modules of their own, each registering its entries on
+#: import, after the ones above (whichever module is imported first)
 BUILT_IN = ("ibt.engine.controller_learners",)
 for _module in BUILT_IN:
-    for _entry in import_module(_module).LEARNERS:
-        register_learner(_entry)
+    import_module(_module)
