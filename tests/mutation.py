@@ -156,6 +156,23 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
     ("ibt/bt/json_io.py", "data = fh.read(MAX_BT_BYTES + 1)",
      "data = fh.read(MAX_BT_BYTES | 1)",
      "`MAX_BT_BYTES` is `64 << 20`, an even number, so `| 1` and `+ 1` give the same size"),
+    ("ibt/synth/commands.py",
+     "for node in range(t.node_count - 1, -1, -1):  # children come after their parent",
+     "for node in range(t.node_count - 2, -1, -1):  # children come after their parent",
+     "scikit-learn numbers a node's children after it, so a fitted tree's last node is a "
+     "leaf, where the loop's body does nothing: leaving it out changes no value"),
+    ("ibt/synth/commands.py", "if left != -1:", "if left > -1:",
+     "a node's left child is a node number (at least 1) or -1 at a leaf (scikit-learn's "
+     "TREE_LEAF), so `!= -1` and `> -1` agree"),
+    ("ibt/engine/parallel.py", "if not isinstance(outcome[0], BaseException):",
+     "if not isinstance(outcome[-1], BaseException):",
+     "the connecting thread appends exactly one thing (the client or its error), and the line "
+     "is reached only where it has: `outcome[0]` and `outcome[-1]` name it"),
+    ("ibt/engine/parallel.py",
+     "return items / n_jobs if running == items > n_jobs else float(math.ceil(items / running))",
+     "return items / n_jobs if running >= items > n_jobs else float(math.ceil(items / running))",
+     "`processes` gives `items` or `n_jobs`, and where `items > n_jobs` neither is above "
+     "`items`, so `running >= items` holds exactly where `running == items` does"),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',
