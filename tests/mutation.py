@@ -74,6 +74,14 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
                            "tests/test_relational_bt.py"),
     # the workers' progress lines: in-process laws, then two loky workers (seconds)
     "ibt/engine/worker_progress.py": ("tests/test_worker_progress.py",),
+    # the digests' laws on hand-made trees; the importers run the ladder (minutes)
+    "ibt/engine/keys.py": ("tests/test_keys.py",),
+    # the cluster and the cores stood in for in-process, then one run on two loky workers
+    "ibt/engine/parallel.py": ("tests/test_parallel.py",),
+    # settings only; the importers run searches and learners
+    "ibt/engine/budgets.py": ("tests/test_budgets_law.py", "tests/test_budgets.py"),
+    # the plan as data; tests/test_plan.py replays plans on trained agents (minutes)
+    "ibt/engine/plan.py": ("tests/test_plan_file.py",),
     # the arithmetic first; then the ladder's use of it (which trains agents: minutes)
     "ibt/engine/deadline.py": ("tests/test_deadline_law.py", "tests/test_deadline.py"),
     # in-process tests only: the CLI runs of test_hostile_files.py take minutes a mutant
@@ -148,6 +156,29 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
     ("ibt/bt/json_io.py", "data = fh.read(MAX_BT_BYTES + 1)",
      "data = fh.read(MAX_BT_BYTES | 1)",
      "`MAX_BT_BYTES` is `64 << 20`, an even number, so `| 1` and `+ 1` give the same size"),
+    ("ibt/synth/commands.py",
+     "for node in range(t.node_count - 1, -1, -1):  # children come after their parent",
+     "for node in range(t.node_count - 2, -1, -1):  # children come after their parent",
+     "scikit-learn numbers a node's children after it, so a fitted tree's last node is a "
+     "leaf, where the loop's body does nothing: leaving it out changes no value"),
+    ("ibt/synth/commands.py", "if left != -1:", "if left > -1:",
+     "a node's left child is a node number (at least 1) or -1 at a leaf (scikit-learn's "
+     "TREE_LEAF), so `!= -1` and `> -1` agree"),
+    ("ibt/engine/parallel.py", "if not isinstance(outcome[0], BaseException):",
+     "if not isinstance(outcome[-1], BaseException):",
+     "the connecting thread appends exactly one thing (the client or its error), and the line "
+     "is reached only where it has: `outcome[0]` and `outcome[-1]` name it"),
+    ("ibt/engine/parallel.py",
+     "return items / n_jobs if running == items > n_jobs else float(math.ceil(items / running))",
+     "return items / n_jobs if running >= items > n_jobs else float(math.ceil(items / running))",
+     "`processes` gives `items` or `n_jobs`, and where `items > n_jobs` neither is above "
+     "`items`, so `running >= items` holds exactly where `running == items` does"),
+    *(("ibt/engine/worker_progress.py",
+       'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
+       f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',
+       "a line's bar shows `{desc}` alone and never advances: its total feeds only the "
+       "fraction, rate and time left that this format leaves out, so the drawn text is the "
+       "same (checked with tqdm 4.70 for totals 0, 1 and -1)") for total in (1, -1)),
 )
 
 #: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.

@@ -4,6 +4,8 @@ table, the merge of leaves into rounded commands, the classifier over command id
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -222,3 +224,64 @@ def test_a_command_bt_policy_refuses_another_task_and_commands_outside_the_box()
         CommandBTPolicy(get_task("MountainCarContinuous-v0"), bt)
     with pytest.raises(ValueError, match="outside"):
         CommandBTPolicy(PENDULUM, _bt_with_commands(((-1.0,), (2.5,))))
+
+
+MOUNTAIN_CAR = get_task("MountainCarContinuous-v0")  # one dimension, force in [-1, 1]
+
+
+@pytest.fixture(scope="module")
+def pumping() -> DecisionTreeRegressor:
+    """MountainCarContinuous's force along the velocity, which reaches the flag (about 89 on
+    seed 0), and full force in a corner never reached: three leaves, two exact values. One
+    command (the leaves' mean force, near 0) never reaches the flag: k = 1 loses about 89,
+    k = 2 sends exactly the tree's actions."""
+    tree = _tree(MOUNTAIN_CAR, lambda x: np.where(x[:, 0] < -1.1, 1.0,
+                                                  np.where(x[:, 1] < 0, -1.0, 1.0)), leaves=3)
+    assert tree.get_n_leaves() == 3
+    return tree
+
+
+def _ks(tree, **kwargs) -> list[int]:
+    chosen, rows = choose_commands(tree, MOUNTAIN_CAR, [0], **kwargs)
+    assert chosen.n_commands == rows[-1]["commands"]
+    return [r["k"] for r in rows]
+
+
+def test_a_k_is_kept_where_its_loss_is_within_tolerance_times_the_scale(pumping):
+    _, rows = choose_commands(pumping, MOUNTAIN_CAR, [0], scale=1.0, tolerance=-1e9)
+    assert [(r["k"], r["commands"]) for r in rows] == [(1, 1), (2, 2), (3, 2)]
+    assert 80 < rows[0]["loss"] < 100 and rows[1]["loss"] == rows[2]["loss"] == 0.0
+    for r in rows:
+        assert r["loss"] == r["tree_return"] - r["mean_return"]
+    assert _ks(pumping, scale=1.0, tolerance=0.5) == [1, 2]  # a loss of 89 is not within 0.5
+    assert _ks(pumping, scale=-100.0, tolerance=0.9) == [1]  # 89 is within 0.9 x |-100|
+    assert _ks(pumping, scale=100.0, tolerance=0.8) == [1, 2]  # not within 0.8 x 100
+
+
+def test_the_default_tolerance_is_one_percent_of_the_scale(pumping):
+    assert _ks(pumping, scale=10_000.0) == [1]  # 89 is within 1 % of 10,000
+    assert _ks(pumping, scale=5_000.0) == [1, 2]  # not within 1 % of 5,000
+
+
+def test_a_task_without_units_names_its_commands_by_value_alone(lander_tree):
+    bare = replace(LANDER, action_units=())
+    assert command_name(bare, np.array([0.8, -0.35])) == "main_engine 0.8, side_engine -0.35"
+    ct = command_tree(lander_tree, bare, 2)
+    assert ct.commands.units == ("", "")
+    assert ct.task.action_names == tuple(command_name(LANDER, np.array(v))
+                                         for v in ct.commands.values)
+
+
+def test_leaves_are_merged_in_units_of_each_dimensions_box_span():
+    """A first dimension of span 2 and a second of span 20: leaves 1.8 apart in the first are
+    farther apart, in spans, than leaves 3 apart in the second, so k = 2 splits the first."""
+    task = replace(LANDER, action_low=(-1.0, -10.0), action_high=(1.0, 10.0))
+    tree = _tree(task, lambda x: np.stack([np.where(x[:, 0] > 0, 0.9, -0.9),
+                                           np.where(x[:, 1] > 0, 3.0, 0.0)], 1), leaves=4)
+    _, values, _ = leaf_table(tree)
+    assert sorted(map(tuple, np.round(values, 6))) == [(-0.9, 0.0), (-0.9, 3.0), (0.9, 0.0),
+                                                      (0.9, 3.0)]
+    leaf_ids, table = merge_leaves(tree, task, 2)
+    assert sorted(table[:, 0]) == [-0.9, 0.9]
+    for c in range(2):
+        assert len(set(np.sign(values[leaf_ids == c, 0]))) == 1

@@ -86,3 +86,52 @@ def test_the_lines_follow_the_running_items_in_order(monkeypatch, capfd):
         bars.draw()
         assert [b.desc for b in bars.bars] == ["  third 1/4", ""]
     assert not bars.folder.exists()
+
+
+def test_a_worker_writes_its_status_at_most_every_save_every_seconds(tmp_path, monkeypatch):
+    clock = [100.0]
+    monkeypatch.setattr(worker_progress.time, "monotonic", lambda: clock[0])
+    status = tmp_path / "0.txt"
+    stream = StatusStream(status, io.StringIO())
+    stream.write("\rstep 1")  # the first line is written at once
+    assert status.read_text() == "step 1"
+    clock[0] += worker_progress.SAVE_EVERY / 2
+    stream.write("\rstep 2")  # too soon: kept, not written
+    assert status.read_text() == "step 1" and stream.latest == "step 2"
+    clock[0] = 100.0 + worker_progress.SAVE_EVERY
+    stream.write("\rstep 3")
+    assert status.read_text() == "step 3"
+    assert worker_progress.SAVE_EVERY == 0.2  # a few writes a second, never a flood
+
+
+def test_at_least_one_line_is_drawn_whatever_lines_is_asked(monkeypatch):
+    monkeypatch.setattr(worker_progress, "POLL", 3600.0)
+    for lines in (0, -3, 1):
+        with WorkerBars(items=3, lines=lines) as bars:
+            for item in range(3):
+                Path(bars.path(item)).write_text(f"item {item}")
+            assert bars.running() == ["item 0"]
+    with WorkerBars(items=3, lines=2) as bars:
+        for item in range(3):
+            Path(bars.path(item)).write_text(f"item {item}")
+        assert bars.running() == ["item 0", "item 1"]
+
+
+def test_an_item_that_draws_no_bar_leaves_no_status_file_to_remove(tmp_path):
+    status = tmp_path / "000002.txt"
+    assert reporting(str(status), sum, (1, 2)) == 3
+    assert not status.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_the_drawing_thread_never_keeps_the_process_alive(tmp_path):
+    """A caller that ends inside the block (its ``__exit__`` never ran) still exits: the
+    thread redrawing the lines is a daemon."""
+    import subprocess
+    import sys
+
+    script = ("from ibt.engine import worker_progress\n"
+              "worker_progress.POLL = 0.01\n"
+              "worker_progress.WorkerBars(items=1, lines=1).__enter__()\n")
+    done = subprocess.run([sys.executable, "-c", script], timeout=60, capture_output=True,
+                          cwd=Path(worker_progress.__file__).parents[2])
+    assert done.returncode == 0, done.stderr.decode()
