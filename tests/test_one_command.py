@@ -9,6 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from ibt.paths import DATA_DIR, ROOT
+from ibt.pipeline.recommend import DEFAULT_TIME
 from ibt.report.one_command import (
     BEGIN,
     END,
@@ -16,6 +17,7 @@ from ibt.report.one_command import (
     one_command_draws,
     small_tasks_markdown,
 )
+from ibt.runs.controllers import OURS
 
 
 def _row(case: str, seed: float | None, mean: float, nodes: int = 20, commit: str = "",
@@ -59,17 +61,17 @@ def test_the_mean_of_draws_lies_within_their_range(means):
 def test_text_from_the_benchmark_file_is_escaped():
     bench = pd.DataFrame([_row("x", 0.0, 1.0, commit="<script>|", task="<b>Env|v0"),
                           _row("y", 0.0, float("nan"), time_limit="10m", learner="<i>")])
-    block = one_command_block(bench)
+    block = one_command_block(bench, DEFAULT_TIME, OURS)
     assert "<script>" not in block and "<b>" not in block and "<i>" not in block
     assert "&lt;script&gt;\\|" in block and block.startswith(BEGIN) and block.endswith(END)
 
 
 def test_small_tasks_are_the_default_time_and_count_the_steering_learners():
     bench = pd.DataFrame([_row("a", 0.0, float("nan"), time_limit="10m", learner="axis"),
-                          _row("b", 0.0, float("nan"), time_limit="600", learner="controller"),
+                          _row("b", 0.0, float("nan"), time_limit="600s", learner="controller"),
                           _row("c", 0.0, float("nan"), time_limit="15m", learner="oblique"),
                           _row("d", 0.0, 250.0, time_limit="10m", learner="oblique")])
-    text = small_tasks_markdown(bench)
+    text = small_tasks_markdown(bench, DEFAULT_TIME, OURS)
     assert text.count("| LunarLander-v3 ppo |") == 2  # a and b: 15m and confirmed left out
     assert "made 1 of these 2 BTs" in text
 
@@ -77,4 +79,4 @@ def test_small_tasks_are_the_default_time_and_count_the_steering_learners():
 def test_the_readme_block_is_the_committed_benchmarks():
     bench = pd.read_csv(DATA_DIR / "results" / "pipeline_bench.csv")
     readme = (ROOT / "README.md").read_text()
-    assert one_command_block(bench) in readme
+    assert one_command_block(bench, DEFAULT_TIME, OURS) in readme

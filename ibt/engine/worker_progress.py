@@ -75,7 +75,7 @@ def reporting(path: str | None, fn: Callable[..., Any], *args: Any) -> Any:
     (``None``: shown nowhere); the file is gone when it returns."""
     status = Path(path) if path else None
     saved = sys.stderr
-    sys.stderr = StatusStream(status, saved)  # type: ignore[assignment]  # tqdm's default file
+    sys.stderr = StatusStream(status, saved)  # tqdm's default file
     try:
         return fn(*args)
     finally:

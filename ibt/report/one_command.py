@@ -93,36 +93,34 @@ def one_command_markdown(draws: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def small_tasks(bench: pd.DataFrame) -> pd.DataFrame:
-    """The cases run at the pipeline's default time and not confirmed further: the small
-    tasks a user meets first."""
-    from ibt.cli.checks import duration_arg
-    from ibt.pipeline.recommend import DEFAULT_TIME
-
+def small_tasks(bench: pd.DataFrame, default_time: float) -> pd.DataFrame:
+    """The cases run at the pipeline's default time (``default_time`` seconds) and not
+    confirmed further: the small tasks a user meets first."""
     confirmed = pd.to_numeric(bench.confirm_mean, errors="coerce").notna()
-    default = bench.time_limit.astype(str).map(duration_arg) == DEFAULT_TIME
-    return bench[default & ~confirmed]
+    seconds = bench.time_limit.astype(str).map(lambda label: pd.to_timedelta(label).total_seconds())
+    return bench[(seconds == default_time) & ~confirmed]
 
 
-def small_tasks_markdown(bench: pd.DataFrame) -> str:
-    """The small tasks' table, and how many BTs the learners that steer made."""
-    from ibt.runs.controllers import OURS
-
-    rows = small_tasks(bench)
+def small_tasks_markdown(bench: pd.DataFrame, default_time: float, steering: tuple[str, ...]
+                         ) -> str:
+    """The small tasks' table, and how many of their BTs the ``steering`` learners made."""
+    rows = small_tasks(bench, default_time)
     lines = ["| task, agent | wall time, 2 cores | BT nodes | retention (held-out episodes) | "
              "learner of the BT |", "|---|---|---|---|---|"]
     for row in rows.itertuples():
         lines.append(f"| {md(row.task)} {md(row.algo)} | {float(row.wall_s):.0f} s | "
                      f"{int(float(row.bt_nodes))} | {float(row.retention_confirmed):.1f} % | "
                      f"{md(row.learner)} |")
-    steering = int(rows.learner.isin(OURS).sum())
-    names = " and ".join(f"`{name}`" for name in sorted(OURS))
+    made = int(rows.learner.isin(steering).sum())
+    names = " and ".join(f"`{md(name)}`" for name in sorted(steering))
     return "\n".join([*lines, "", f"The learners that steer ({names}: linear commands, "
-                       f"tests over up to four features) made {steering} of these {len(rows)} "
+                       f"tests over up to four features) made {made} of these {len(rows)} "
                        "BTs."])
 
 
-def one_command_block(bench: pd.DataFrame) -> str:
-    """The README's block, :data:`BEGIN` and :data:`END` included."""
-    return "\n".join([BEGIN, "", small_tasks_markdown(bench), "",
+def one_command_block(bench: pd.DataFrame, default_time: float, steering: tuple[str, ...]
+                      ) -> str:
+    """The README's block, :data:`BEGIN` and :data:`END` included (``default_time``: the
+    pipeline's, in seconds; ``steering``: the learners of linear commands and oblique tests)."""
+    return "\n".join([BEGIN, "", small_tasks_markdown(bench, default_time, steering), "",
                        one_command_markdown(one_command_draws(bench)), "", END])
