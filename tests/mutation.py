@@ -173,6 +173,15 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "return items / n_jobs if running >= items > n_jobs else float(math.ceil(items / running))",
      "`processes` gives `items` or `n_jobs`, and where `items > n_jobs` neither is above "
      "`items`, so `running >= items` holds exactly where `running == items` does"),
+    ("ibt/engine/plan.py", "if self.done < len(self.entries):",
+     "if self.done != len(self.entries):",
+     "`done` counts the entries taken, and `take` returns None at the last one instead of "
+     "going past it, so `done` never exceeds their number: `<` and `!=` agree"),
+    ("ibt/engine/budgets.py",
+     'if search_episodes is not None and cfg.profile != "smoke":',
+     'if search_episodes is not None and cfg.profile < "smoke":',
+     "a profile is `paper` or `smoke` (`ibt.config` refuses any other), and `paper` sorts "
+     "before `smoke`: `< \"smoke\"` and `!= \"smoke\"` agree on both"),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',
