@@ -13,8 +13,11 @@ from ibt.pipeline.recommend import DEFAULT_TIME
 from ibt.report.one_command import (
     BEGIN,
     END,
+    SENTENCE_BEGIN,
+    SENTENCE_END,
     one_command_block,
     one_command_draws,
+    readme_sentence,
     small_tasks_markdown,
 )
 from ibt.runs.controllers import OURS
@@ -76,7 +79,19 @@ def test_small_tasks_are_the_default_time_and_count_the_steering_learners():
     assert "made 1 of these 2 BTs" in text
 
 
-def test_the_readme_block_is_the_committed_benchmarks():
+def test_the_guide_and_the_readme_say_what_the_committed_benchmark_gives():
     bench = pd.read_csv(DATA_DIR / "results" / "pipeline_bench.csv")
-    readme = (ROOT / "README.md").read_text()
-    assert one_command_block(bench, DEFAULT_TIME, OURS) in readme
+    guide = (ROOT / "docs" / "own-agent.md").read_text()
+    assert one_command_block(bench, DEFAULT_TIME, OURS) in guide
+    assert readme_sentence(one_command_draws(bench)) in (ROOT / "README.md").read_text()
+
+
+def test_the_readme_quotes_only_commands_with_enough_draws():
+    bench = pd.DataFrame([_row("lunarlander-ppo", 0.0, 240.0),
+                          _row("lunarlander-ppo-seed1", 1.0, 250.0),
+                          _row("lunarlander-ppo-seed2", 2.0, 230.0),
+                          _row("lunarlander-dqn", 0.0, 215.0, algo="dqn")])
+    text = " ".join(readme_sentence(one_command_draws(bench)).split())
+    assert "PPO 240.0 (230.0-250.0)" in text and "3 draws each on 1,000 fresh episodes" in text
+    assert "DQN" not in text and "1 other command has fewer draws so far." in text
+    assert text.startswith(SENTENCE_BEGIN) and text.endswith(SENTENCE_END)

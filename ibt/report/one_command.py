@@ -20,6 +20,10 @@ from ibt.report.text import md
 _DRAW = re.compile(r"-seed\d+$")
 BEGIN = "<!-- one-command:begin (written by notebooks/09_report.ipynb) -->"
 END = "<!-- one-command:end -->"
+#: the README's sentence of the same results (inside a list item)
+SENTENCE_BEGIN = "<!-- one-command-sentence:begin (written by notebooks/09_report.ipynb) -->"
+SENTENCE_END = "<!-- one-command-sentence:end -->"
+DRAWS = 3  #: draws of a command before the README quotes its mean and range
 
 
 def options_of(row: Any) -> str:
@@ -124,3 +128,25 @@ def one_command_block(bench: pd.DataFrame, default_time: float, steering: tuple[
     pipeline's, in seconds; ``steering``: the learners of linear commands and oblique tests)."""
     return "\n".join([BEGIN, "", small_tasks_markdown(bench, default_time, steering), "",
                        one_command_markdown(one_command_draws(bench)), "", END])
+
+
+def readme_sentence(draws: pd.DataFrame) -> str:
+    """The README's sentence between :data:`SENTENCE_BEGIN` and :data:`SENTENCE_END`: the mean
+    and range of each command with :data:`DRAWS` draws or more, and how many have fewer."""
+    import textwrap
+
+    full = draws[draws.draws >= DRAWS]
+    said = []
+    for (task, options), group in full.groupby(["task", "options"], sort=False):
+        each = ", ".join(f"{md(row.algo).upper()} {row.mean_return:.1f} "
+                         f"({row.lowest_return:.1f}-{row.highest_return:.1f})"
+                         for row in group.itertuples())
+        counts = _span(int(group.draws.min()), int(group.draws.max()), "d")
+        said.append(f"{md(task)} `{md(options)}`, {counts} draws each on "
+                    f"{int(group.episodes.min()):,} fresh episodes: {each}")
+    fewer = len(draws) - len(full)
+    others = f"{fewer} other command has" if fewer == 1 else f"{fewer} other commands have"
+    text = "; ".join(said) + (f"; {others} fewer draws so far" if fewer else "") + "."
+    body = textwrap.fill(text, width=98, initial_indent="  ", subsequent_indent="  ",
+                         break_on_hyphens=False)
+    return "\n".join([SENTENCE_BEGIN, body + SENTENCE_END])
