@@ -59,7 +59,13 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/model.py": ("tests/test_bt_model_law.py", "tests/test_executors_law.py",
                         "tests/test_bt.py",
                         "tests/test_nonfinite.py", "tests/test_mutants.py"),
-    "ibt/bt/coverage.py": ("tests/test_bt.py",),
+    # the proof's parts first, then BTs it proves or refuses, then its relational gaps
+    "ibt/bt/coverage.py": (
+        "tests/test_coverage_law.py", "tests/test_bt.py",
+        "tests/test_relational_bt.py::test_guards_that_cover_every_state_on_one_form_are_proved",
+        "tests/test_relational_bt.py::test_a_gap_between_relational_guards_is_found_with_a_state",
+        "tests/test_relational_bt.py::test_guards_that_cover_only_geometrically_are_refused_"
+        "not_trusted"),
     # its own laws; the files importing it (the CLI, the grid, Box tasks) take minutes a mutant
     "ibt/synth/registry.py": ("tests/test_synth_registry.py",),
     # the reader's own laws; its importers (the CLI, the views, the engines) take minutes
@@ -182,6 +188,25 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      'if search_episodes is not None and cfg.profile < "smoke":',
      "a profile is `paper` or `smoke` (`ibt.config` refuses any other), and `paper` sorts "
      "before `smoke`: `< \"smoke\"` and `!= \"smoke\"` agree on both"),
+    ("ibt/bt/coverage.py", "cut = lo if rlo < lo < rhi else hi if rlo < hi < rhi else None",
+     "cut = lo if rlo < lo < rhi else hi if rlo <= hi < rhi else None",
+     "the box is live, so it meets the region: on each of its features `hi > rlo`, and "
+     "`rlo <= hi` and `rlo < hi` agree"),
+    ("ibt/bt/coverage.py",
+     "np.nextafter(np.float32(lo), np.float32(np.inf)) if math.isfinite(lo) else 0.0)",
+     "np.nextafter(np.float32(lo), np.float32(np.inf)) if math.isfinite(lo) else 1.0)",
+     "a region names a feature only once it was split there, at a cut strictly inside its "
+     "bounds, so one of its two bounds is finite and the last branch is never taken"),
+    ("ibt/bt/coverage.py",
+     "def _truth(node: Node, negate: bool = False, columns: Columns | None = None",
+     "def _truth(node: Node, negate: bool = True, columns: Columns | None = None",
+     "every call of `_truth` passes `negate` (its three calls, all in the module), so the "
+     "default is never used"),
+    ("ibt/bt/coverage.py", "guarded = acts or fails or any(k.guarded for k in kids)",
+     "guarded = acts and fails or any(k.guarded for k in kids)",
+     "a Sequence that surely acts or surely fails has a child that does, and every node that "
+     "surely acts or fails is guarded (an Action is; an Inverter, a Sequence and a Fallback "
+     "are by their own rules), so `any(k.guarded)` already holds there"),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',
