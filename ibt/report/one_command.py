@@ -81,7 +81,7 @@ def _span(low: float, high: float, fmt: str) -> str:
 
 
 def one_command_markdown(draws: pd.DataFrame) -> str:
-    """The table of :func:`one_command_draws`, for the README."""
+    """The table of :func:`one_command_draws`, for the guide (``docs/own-agent.md``)."""
     lines = ["| task, agent | options | draws (`--seed`) | code measured (seed: commit) | "
              "BT nodes | fresh episodes a draw | return: mean of draws (lowest-highest) | "
              "episodes >= 200 (mean) | wall time, 2 cores |",
@@ -124,7 +124,7 @@ def small_tasks_markdown(bench: pd.DataFrame, default_time: float, steering: tup
 
 def one_command_block(bench: pd.DataFrame, default_time: float, steering: tuple[str, ...]
                       ) -> str:
-    """The README's block, :data:`BEGIN` and :data:`END` included (``default_time``: the
+    """The guide's block, :data:`BEGIN` and :data:`END` included (``default_time``: the
     pipeline's, in seconds; ``steering``: the learners of linear commands and oblique tests)."""
     return "\n".join([BEGIN, "", small_tasks_markdown(bench, default_time, steering), "",
                        one_command_markdown(one_command_draws(bench)), "", END])
