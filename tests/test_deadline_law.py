@@ -120,3 +120,22 @@ def test_the_shorter_of_the_agents_and_the_trees_episodes_sets_the_pace():
     none = Pace(agent_length=0.0)  # no agent length known: the trees' mean alone
     none.add(_returns([10, 10], 2.0))
     assert none.length() == 10.0
+
+
+@given(limit=st.floats(10, 1e5), share=st.floats(0, 2))
+def test_a_time_stop_says_whether_the_budget_ran_out_or_the_next_step_would_not_fit(
+        limit: float, share: float) -> None:
+    """A run that stops well before its budget's end says the next step would not fit in what
+    was left (not that the budget ran out), with what was left; one that reached its end says
+    it ran out."""
+    from types import SimpleNamespace
+
+    from ibt.pipeline.recommend import Recommendation
+
+    rec = SimpleNamespace(time_limit=limit, elapsed=share * limit)
+    said = Recommendation.time_stop.fget(rec)  # type: ignore[attr-defined]
+    if share < 0.95:
+        assert said.startswith("what was left of its --time budget (")
+        assert f"({limit - share * limit:.0f} s)" in said and "would not cover" in said
+    else:
+        assert said == "its --time budget ran out"

@@ -92,7 +92,8 @@ def pipeline_command(args: argparse.Namespace) -> int:
     except FolderError as err:
         raise UsageError(str(err)) from None
     verdict = "meets" if rec.met else "MISSES"
-    stopped = {"time": f"; the --time budget ended the search after {rec.elapsed:.0f} s",
+    stopped = {"time": f"; the --time budget ended the search after {rec.elapsed:.0f} s "
+                       f"({rec.time_stop})",
                "interrupted": "; stopped by Ctrl-C", "terminated": "; stopped by SIGTERM"
                }.get(rec.stopped or "", "")
     print(f"{task.name}/{args.algo}: recommended a {rec.chosen.bt_nodes}-node BT keeping "

@@ -240,17 +240,18 @@ def ladder_text(rec: Recommendation) -> list[str]:
     """How the ladder went: a stop's mark, the steps done and left, and each search's choice
     among its restarts."""
     ladder = rec.ladder
-    budget = f" ({rec.time_limit:.0f} s)" if rec.time_limit is not None else ""  # a replay's
-    how = {"time": f"the time budget{budget} ended it",
+    budget = f" of {rec.time_limit:.0f}" if rec.time_limit is not None else ""  # a replay's
+    how = {"time": f"{rec.time_stop}, so it stopped",
            "interrupted": "Ctrl-C stopped it", "terminated": "SIGTERM stopped it"}
     lines = ["## How the search went", ""]
     if ladder.stopped:
         lines += [f"**Stopped early**: {how.get(ladder.stopped, ladder.stopped)} after "
-                  f"{rec.elapsed:.0f} s; this report covers the {len(ladder.steps)} steps done "
-                  "(the recommendation is the best BT among them, confirmed as below). Left "
-                  f"undone: {', '.join(ladder.skipped) or 'nothing'}. Where a run stops depends "
-                  "on the machine's speed; a rerun with a longer `--time` resumes from the "
-                  "cache and, once the ladder finishes, gives the same files.", ""]
+                  f"{rec.elapsed:.0f}{budget} s; this report covers the {len(ladder.steps)} "
+                  "steps done (the recommendation is the best BT among them, confirmed as "
+                  f"below). Left undone: {', '.join(ladder.skipped) or 'nothing'}. Where a "
+                  "run stops depends on the machine's speed; a rerun with a longer `--time` "
+                  "resumes from the cache and, once the ladder finishes, gives the same "
+                  "files.", ""]
     else:
         how_far = ("replayed its plan, every step in order (no time budget)"
                    if getattr(rec, "replayed", None) else "finished within its time budget")
@@ -409,7 +410,7 @@ def report_text(rec: Recommendation, out: Path, gif: tuple[int, str | None]) -> 
              else rec.cache_dir)
     lines = [
         f"# A behavior tree for {rec.task.name}'s {rec.algo} agent", "",
-        *([stopped_note(rec.stopped), ""] if rec.stopped else []),
+        *([stopped_note(rec), ""] if rec.stopped else []),
         verdict, "",
         f"Recommended: a **{c.bt_nodes}-node BT** ({c.bt_method}) of the {c.label} tree at "
         f"leaf limit {c.leaf_limit} ({c.leaves} leaves); every synthesiser's BT of that tree, "
@@ -467,9 +468,10 @@ def fenced(text: str, info: str = "") -> list[str]:
     return [fence + info, text, fence]
 
 
-def stopped_note(stopped: str) -> str:
+def stopped_note(rec: Recommendation) -> str:
     """The line under the report's title when the run stopped before its last step."""
-    why = {"time": "its --time budget ran out", "interrupted": "Ctrl-C",
+    stopped = rec.stopped or ""
+    why = {"time": rec.time_stop, "interrupted": "Ctrl-C",
            "terminated": "SIGTERM"}.get(stopped, stopped)
     return (f"> **Stopped early** ({why}): this is the best recommendation found before the "
             "run stopped (see *How the search went*); rerun the same command, with a longer "

@@ -122,6 +122,16 @@ class Recommendation:
     agreement: Agreement | None = None  # every candidate's action agreement with the agent
 
     @property
+    def time_stop(self) -> str:
+        """Why a run stopped by its time budget did: the budget ran out, or what was left of it
+        would not cover the next step (the ladder stops there, well before the budget's end,
+        rather than start a step it would have to cut)."""
+        if self.time_limit is not None and self.elapsed < 0.95 * self.time_limit:
+            return (f"what was left of its --time budget ({self.time_limit - self.elapsed:.0f} "
+                    "s) would not cover the next step")
+        return "its --time budget ran out"
+
+    @property
     def faithful(self) -> Candidate:
         """The candidate whose BT agrees most with the agent (:func:`most_faithful`); the
         chosen one where agreement was not measured."""
