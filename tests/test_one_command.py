@@ -92,6 +92,18 @@ def test_the_readme_quotes_only_commands_with_enough_draws():
                           _row("lunarlander-ppo-seed2", 2.0, 230.0),
                           _row("lunarlander-dqn", 0.0, 215.0, algo="dqn")])
     text = " ".join(readme_sentence(one_command_draws(bench)).split())
-    assert "PPO 240.0 (230.0-250.0)" in text and "3 draws each on 1,000 fresh episodes" in text
+    assert "`--time 30m` PPO 240.0 (230.0-250.0)" in text
+    assert "LunarLander-v3, 3 draws of each command on 1,000 fresh episodes:" in text
     assert "DQN" not in text and "1 other command has fewer draws so far." in text
     assert text.startswith(SENTENCE_BEGIN) and text.endswith(SENTENCE_END)
+
+
+def test_a_run_given_fewer_processes_than_cores_names_its_jobs():
+    """A ``--time`` run's steps depend on the processes it had, so ``--jobs`` below the
+    machine's cores is part of the command; draws that differ in it say both."""
+    bench = pd.DataFrame([_row("lunarlander-dqn", 0.0, 215.0, jobs=1.0, cpus=2),
+                          _row("lunarlander-dqn-seed1", 1.0, 225.0, jobs=1.0, cpus=2),
+                          _row("lunarlander-ppo", 0.0, 240.0, jobs=2.0, cpus=2),
+                          _row("lunarlander-ppo-seed1", 1.0, 250.0, jobs=1.0, cpus=2)])
+    draws = one_command_draws(bench)
+    assert list(draws.options) == ["--time 30m --jobs 1", "--time 30m or --time 30m --jobs 1"]

@@ -28,13 +28,17 @@ DRAWS = 3  #: draws of a command before the README quotes its mean and range
 
 def options_of(row: Any) -> str:
     """The benchmarked command's options beyond the task and the agent (``--leaves``,
-    ``--max-nodes``, ``--time``)."""
+    ``--max-nodes``, ``--time``, and ``--jobs`` where the run had fewer processes than the
+    machine's cores: a ``--time`` run's steps depend on the processes it had)."""
     parts = []
     if str(row.leaves) not in ("default", "", "nan"):
         parts.append(f"--leaves {row.leaves}")
     if pd.notna(row.max_nodes) and str(row.max_nodes) != "":
         parts.append(f"--max-nodes {int(float(row.max_nodes))}")
     parts.append(f"--time {row.time_limit}")
+    jobs, cpus = getattr(row, "jobs", None), getattr(row, "cpus", None)
+    if pd.notna(jobs) and pd.notna(cpus) and int(float(jobs)) < int(float(cpus)):
+        parts.append(f"--jobs {int(float(jobs))}")
     return " ".join(parts)
 
 
@@ -55,7 +59,7 @@ def one_command_draws(bench: pd.DataFrame) -> pd.DataFrame:
         commits = draws.commit.fillna("").astype(str).replace("", "not recorded")
         rows.append({
             "case": case, "task": draws.task.iloc[0], "algo": draws.algo.iloc[0],
-            "options": options_of(draws.iloc[0]),
+            "options": " or ".join(dict.fromkeys(options_of(d) for d in draws.itertuples())),
             "seeds": ", ".join(str(s) for s in draws.draw_seed),
             "commits": "; ".join(f"{s}: {c}" for s, c in zip(draws.draw_seed, commits,
                                                               strict=True)),
@@ -137,13 +141,16 @@ def readme_sentence(draws: pd.DataFrame) -> str:
 
     full = draws[draws.draws >= DRAWS]
     said = []
-    for (task, options), group in full.groupby(["task", "options"], sort=False):
-        each = ", ".join(f"{md(row.algo).upper()} {row.mean_return:.1f} "
-                         f"({row.lowest_return:.1f}-{row.highest_return:.1f})"
-                         for row in group.itertuples())
-        counts = _span(int(group.draws.min()), int(group.draws.max()), "d")
-        said.append(f"{md(task)} `{md(options)}`, {counts} draws each on "
-                    f"{int(group.episodes.min()):,} fresh episodes: {each}")
+    for (task, counts, episodes), by_task in full.groupby(
+            ["task", "draws", "episodes"], sort=False):
+        commands = "; ".join(
+            f"`{md(options)}` " + ", ".join(f"{md(row.algo).upper()} {row.mean_return:.1f} "
+                                            f"({row.lowest_return:.1f}-"
+                                            f"{row.highest_return:.1f})"
+                                            for row in group.itertuples())
+            for options, group in by_task.groupby("options", sort=False))
+        said.append(f"{md(task)}, {counts} draws of each command on {int(episodes):,} fresh "
+                    f"episodes: {commands}")
     fewer = len(draws) - len(full)
     others = f"{fewer} other command has" if fewer == 1 else f"{fewer} other commands have"
     text = "; ".join(said) + (f"; {others} fewer draws so far" if fewer else "") + "."
