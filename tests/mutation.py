@@ -66,6 +66,14 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
         "tests/test_relational_bt.py::test_a_gap_between_relational_guards_is_found_with_a_state",
         "tests/test_relational_bt.py::test_guards_that_cover_only_geometrically_are_refused_"
         "not_trusted"),
+    # its own laws (forms, feature maps, exact thresholds); its importers learn relational
+    # trees, run the engine or distil controllers (minutes a mutant)
+    "ibt/bt/linear.py": ("tests/test_linear_law.py",),
+    # its own laws on hand-made regions and BTs; its importers run the verifier and the
+    # engine on learnt relational trees (minutes a mutant)
+    "ibt/bt/polytope.py": ("tests/test_polytope_law.py",),
+    # its own laws (split tests, commands, layout, checks, rules text) on hand-made trees
+    "ibt/synth/controller.py": ("tests/test_controller_bt_law.py",),
     # its own laws; the files importing it (the CLI, the grid, Box tasks) take minutes a mutant
     "ibt/synth/registry.py": ("tests/test_synth_registry.py",),
     # the reader's own laws; its importers (the CLI, the views, the engines) take minutes
