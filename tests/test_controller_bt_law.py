@@ -6,6 +6,7 @@ Quick: hand-made trees of three to four leaves, no learner."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import replace
 
@@ -147,6 +148,8 @@ def test_a_controller_bt_sends_exactly_the_trees_command_with_one_rule_per_leaf(
     x = widen(states)
     assert np.array_equal(built.bt.commands.evaluate(built.bt.decide(x), x), tree.decide(x))
     assert built.states_checked == len(states) and built.disagreements == 0
+    with pytest.raises(dataclasses.FrozenInstanceError):  # what the check saw stays as seen
+        built.disagreements = 1  # type: ignore[misc]
     assert built.rules == tree.n_leaves and built.bt.node_count <= 4 * tree.n_leaves - 3
     assert built.bt.action_names == rule_names(leaf_commands(tree, PENDULUM)[1], PENDULUM)
     assert BehaviorTree.from_json(built.bt.to_json()) == built.bt
@@ -204,6 +207,8 @@ def test_an_oblique_bt_deciding_another_action_is_refused(monkeypatch):
 # ------------------------------------------------------------------- the check's states
 def test_the_check_states_are_visited_random_in_the_box_and_both_sides_of_each_axis_test():
     tree = _tree("both", splits=("pair", "axis", "scaled"))
+    tree = tree.with_parameters(np.array([0.3, -0.25, 0.7, 0, 0, 0, 0]), tree.bias,
+                                tree.weights)  # axis tests below and above 0
     task = replace(PENDULUM, low=(-np.inf, -1.0, -5000.0), high=(np.inf, 1.0, 5000.0))
     visited = np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])
     rows = check_states(tree, task, visited, seed=5, n_random=50)
@@ -220,6 +225,10 @@ def test_the_check_states_are_visited_random_in_the_box_and_both_sides_of_each_a
         assert block[:, feature].tolist() == [below, at, above]
         others = [f for f in range(3) if f != feature]
         assert np.array_equal(block[:, others], np.repeat(rows[:1, others], 3, axis=0))
+    defaults = check_states(tree, task, visited)  # 2000 random states, seed 0
+    assert defaults.shape == (2 + 2000 + 6, 3) and np.array_equal(
+        defaults[2:2002], np.random.default_rng(0).uniform(
+            [-10.0, -1.0, -1e3], [10.0, 1.0, 1e3], size=(2000, 3)).astype(np.float32))
     unvisited = check_states(tree, task, np.zeros((0, 3)), seed=5, n_random=50)
     assert unvisited.shape == (56, 3) and np.array_equal(unvisited[:50], want)
     assert np.array_equal(unvisited[50, 1:], want[0, 1:])  # edges next to the first random

@@ -42,8 +42,11 @@ def test_a_normal_double_is_a_weight_read_as_a_float(value):
 
 @pytest.mark.parametrize("value", [0, 0.0, -0.0, True, False, "1", None, math.inf, -math.inf,
                                    math.nan, np.float64(np.nextafter(sys.float_info.min, 0)),
-                                   5e-324, 10 ** 400, 2 ** 53 + 1])
+                                   5e-324, 10 ** 400, 2 ** 53 + 1, 2 ** 53 + 3,
+                                   np.int64(2 ** 63 - 1)])
 def test_zero_subnormal_non_finite_and_inexact_weights_are_refused(value):
+    """An integer a double does not hold is refused whether it rounds down (``2 ** 53 + 1``)
+    or up (``2 ** 53 + 3``, ``2 ** 63 - 1``)."""
     with pytest.raises(ValueError, match="weight w2"):
         checked_weight(value, "w2")
 
