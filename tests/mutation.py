@@ -215,6 +215,15 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "a Sequence that surely acts or surely fails has a child that does, and every node that "
      "surely acts or fails is guarded (an Action is; an Inverter, a Sequence and a Fallback "
      "are by their own rules), so `any(k.guarded)` already holds there"),
+    ("ibt/synth/controller.py",
+     "out.extend(part.children if type(part) is Sequence else (part,))",
+     "out.extend(part.children if type(part) == Sequence else (part,))",
+     "`type(part)` is a class, and classes compare by identity (no metaclass of a node "
+     "defines `==`), so `==` and `is` agree"),
+    ("ibt/synth/controller.py", 'lines.append(f"{head} {bt.label(body[0])}")',
+     'lines.append(f"{head} {bt.label(body[-1])}")',
+     "the line is reached only where `len(body) == 1`, where `body[0]` and `body[-1]` name "
+     "the same node"),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',

@@ -204,6 +204,17 @@ def test_an_oblique_bt_deciding_another_action_is_refused(monkeypatch):
         controller_bt(tree, CARTPOLE, states)
 
 
+def test_a_rule_sending_nan_agrees_with_the_leaf_sending_nan():
+    """The check compares commands bit for bit, NaN with NaN: a leaf whose command is NaN
+    (a degenerate fit) is the same command in the BT, not a disagreement."""
+    tree = _tree("right", bias=[[0.0], [math.nan], [0.0], [0.5], [1.0]])
+    states = _states(tree)
+    built = controller_bt(tree, PENDULUM, states)
+    x = widen(states)
+    sent = built.bt.commands.evaluate(built.bt.decide(x), x)
+    assert built.disagreements == 0 and np.isnan(sent).any() and not np.isnan(sent).all()
+
+
 # ------------------------------------------------------------------- the check's states
 def test_the_check_states_are_visited_random_in_the_box_and_both_sides_of_each_axis_test():
     tree = _tree("both", splits=("pair", "axis", "scaled"))
