@@ -224,6 +224,13 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      'lines.append(f"{head} {bt.label(body[-1])}")',
      "the line is reached only where `len(body) == 1`, where `body[0]` and `body[-1]` name "
      "the same node"),
+    ("ibt/bt/polytope.py",
+     'bounds=[(-1.0, 1.0)] * n_features + [(None, 1.0)], method="highs")',
+     'bounds=[(-1.0, 2.0)] * n_features + [(None, 1.0)], method="highs")',
+     "a state needs the margin `s > 0`, and the box's rows `|u_f| + s <= 1` then keep every "
+     "`u_f` below 1 already: the bound 1 or 2 never binds where `s > 0`, so the deepest "
+     "margin and the points that reach it are the same (among several, which one is returned "
+     "is the solver's choice either way)"),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',
