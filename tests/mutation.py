@@ -66,6 +66,14 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
         "tests/test_relational_bt.py::test_a_gap_between_relational_guards_is_found_with_a_state",
         "tests/test_relational_bt.py::test_guards_that_cover_only_geometrically_are_refused_"
         "not_trusted"),
+    # its own laws (forms, feature maps, exact thresholds); its importers learn relational
+    # trees, run the engine or distil controllers (minutes a mutant)
+    "ibt/bt/linear.py": ("tests/test_linear_law.py",),
+    # its own laws on hand-made regions and BTs; its importers run the verifier and the
+    # engine on learnt relational trees (minutes a mutant)
+    "ibt/bt/polytope.py": ("tests/test_polytope_law.py",),
+    # its own laws (split tests, commands, layout, checks, rules text) on hand-made trees
+    "ibt/synth/controller.py": ("tests/test_controller_bt_law.py",),
     # its own laws; the files importing it (the CLI, the grid, Box tasks) take minutes a mutant
     "ibt/synth/registry.py": ("tests/test_synth_registry.py",),
     # the reader's own laws; its importers (the CLI, the views, the engines) take minutes
@@ -207,6 +215,22 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "a Sequence that surely acts or surely fails has a child that does, and every node that "
      "surely acts or fails is guarded (an Action is; an Inverter, a Sequence and a Fallback "
      "are by their own rules), so `any(k.guarded)` already holds there"),
+    ("ibt/synth/controller.py",
+     "out.extend(part.children if type(part) is Sequence else (part,))",
+     "out.extend(part.children if type(part) == Sequence else (part,))",
+     "`type(part)` is a class, and classes compare by identity (no metaclass of a node "
+     "defines `==`), so `==` and `is` agree"),
+    ("ibt/synth/controller.py", 'lines.append(f"{head} {bt.label(body[0])}")',
+     'lines.append(f"{head} {bt.label(body[-1])}")',
+     "the line is reached only where `len(body) == 1`, where `body[0]` and `body[-1]` name "
+     "the same node"),
+    ("ibt/bt/polytope.py",
+     'bounds=[(-1.0, 1.0)] * n_features + [(None, 1.0)], method="highs")',
+     'bounds=[(-1.0, 2.0)] * n_features + [(None, 1.0)], method="highs")',
+     "a state needs the margin `s > 0`, and the box's rows `|u_f| + s <= 1` then keep every "
+     "`u_f` below 1 already: the bound 1 or 2 never binds where `s > 0`, so the deepest "
+     "margin and the points that reach it are the same (among several, which one is returned "
+     "is the solver's choice either way)"),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',

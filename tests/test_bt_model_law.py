@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from ibt.bt.linear import LinearForm
@@ -64,3 +65,14 @@ def test_the_json_text_is_indented_by_one_space_and_reads_back():
     assert text == json.dumps(bt.to_dict(), indent=1)
     assert text.startswith('{\n "') and "\n  " in text
     assert BehaviorTree.from_json(text) == bt
+
+
+def test_a_gap_holding_only_infinity_is_named_as_a_state_reaching_no_action():
+    """The proof reasons about unbounded regions: the one state a guard ``x <= float32 max``
+    leaves out is ``x = inf``, which ticks to no action (decided with non-finite values
+    allowed), so the message says that no action is reached there (mutant: that tick refusing
+    the non-finite state, which replaces the message with an executor's refusal)."""
+    top = float(np.finfo(np.float32).max)
+    bt = BehaviorTree(Selector((Sequence((Condition(0, "<=", top), Action(0))),)), ("a",), ("x",))
+    with pytest.raises(ValueError, match=r"no action is reached on some states \(e\.g\. a=inf\)"):
+        bt.validate()

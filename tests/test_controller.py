@@ -2,6 +2,9 @@
 
 Laws: a BT of a controller tree sends exactly the tree's command (in ``ibt`` and in stock
 BehaviorTree.CPP); sums are added left to right in double everywhere; a document round-trips.
+The forms' own laws (oblique forms, the left-to-right sum, script sums) are in
+tests/test_linear_law.py; the BT's construction on hand-made trees in
+tests/test_controller_bt_law.py.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibt.bt.linear import LinearForm, ObliqueForm, form_from_json, linear_form, script_sum
+from ibt.bt.linear import linear_form
 from ibt.bt.model import Action, BehaviorTree, Commands, Condition, Selector, Sequence
 from ibt.distill.controller import (
     ControllerArrays,
@@ -46,43 +49,6 @@ def _controller(rng: np.random.Generator, n_features: int = 3, n_dims: int = 2,
             features = rng.choice(n_features, size=min(n_features, 2), replace=False)
             weights[leaf, d, features] = rng.normal(size=len(features)) * 3
     return ControllerArrays(left, right, split, threshold, bias, weights)
-
-
-# ------------------------------------------------------------------ forms and the sum rule
-def test_a_form_of_two_terms_is_the_relational_form_and_others_are_oblique():
-    assert linear_form([(0, 1.0), (2, -1.0)]) == LinearForm(0, 2, 1.0, -1.0)
-    oblique = linear_form([(0, 0.5), (2, 1.0), (3, -1.0)])
-    assert isinstance(oblique, ObliqueForm) and oblique.features == (0, 2, 3)
-    # Expect: JSON round trips, the reader's text, and refusals naming the problem
-    assert form_from_json(oblique.to_json()) == oblique
-    assert oblique.text(["x", "y", "vx", "angle"]) == "0.5 * x + vx - angle"
-    with pytest.raises(ValueError, match="each feature once"):
-        linear_form([(0, 1.0), (0, 2.0), (1, 1.0)])
-    with pytest.raises(ValueError, match="1 to 4 features"):
-        form_from_json({"features": [0, 1, 2, 3, 4], "weights": [1, 1, 1, 1, 1]})
-    with pytest.raises(ValueError, match="non-zero"):
-        linear_form([(0, 1.0), (1, 0.0), (2, 1.0)])
-
-
-@settings(max_examples=50, deadline=None)
-@given(st.lists(st.floats(-1e3, 1e3, allow_nan=False).filter(lambda w: abs(w) > 1e-3),
-                min_size=3, max_size=4),
-       st.lists(st.floats(-1e3, 1e3, allow_nan=False, width=32), min_size=4, max_size=4))
-def test_an_oblique_form_adds_its_terms_left_to_right_in_double(weights, row):
-    form = ObliqueForm(tuple(range(len(weights))), tuple(weights))
-    x = widen(np.array([row]))
-    total = weights[0] * x[0, 0]
-    for k in range(1, len(weights)):
-        total = total + weights[k] * x[0, k]
-    # Expect: exactly the left-to-right double sum, never a more accurate one
-    assert form.value(x)[0] == total
-
-
-def test_a_script_sum_of_three_or_more_parts_is_grouped_from_the_left():
-    # BehaviorTree.CPP groups a + b + c as a + (b + c): the parentheses keep our order
-    assert script_sum(["a"]) == "a"
-    assert script_sum(["a", "b"]) == "a + b"
-    assert script_sum(["a", "b", "c", "d"]) == "((a + b) + c) + d"
 
 
 # ------------------------------------------------------------------------ linear commands
