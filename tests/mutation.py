@@ -72,6 +72,24 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/json_io.py": ("tests/test_json_io.py",),
     # merging leaves into commands on hand-made trees; its importers distil an expert's tree
     "ibt/synth/commands.py": ("tests/test_commands.py",),
+    # the route and its verifier on small relational trees (seconds); the importers run the
+    # CLI, the grid, the engines or every synthesiser on relational trees
+    "ibt/synth/relational.py": ("tests/test_synth_relational.py",),
+    # the exact region arithmetic against brute force, then the synthesis's own tests
+    "ibt/synth/decision_list_exact.py": (
+        "tests/test_decision_list_exact.py",
+        "tests/test_decision_list.py::test_decides_like_is_exact_where_sampling_is_not",
+        "tests/test_decision_list.py::test_simplify_and_factoring_keep_every_decision"),
+    # the winner and what it reports on small trees, then the size table; the other tests of
+    # tests/test_decision_list.py read committed trees or run the CLI (minutes a mutant)
+    "ibt/synth/decision_list.py": (
+        "tests/test_decision_list_winner.py",
+        "tests/test_decision_list.py::test_size_table_reads_the_synthesis_rows",
+        "tests/test_decision_list.py::test_single_leaf_and_relabelled_trees"),
+    # factoring against brute force and hand-worked factorings
+    "ibt/synth/decision_list_factoring.py": (
+        "tests/test_decision_list_factoring.py",
+        "tests/test_decision_list.py::test_simplify_and_factoring_keep_every_decision"),
     "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
                                "tests/test_synthesis.py"),
     "ibt/synth/rules.py": ("tests/test_rules_logic.py", "tests/test_verification_law.py",
