@@ -225,6 +225,30 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "a Sequence that surely acts or surely fails has a child that does, and every node that "
      "surely acts or fails is guarded (an Action is; an Inverter, a Sequence and a Fallback "
      "are by their own rules), so `any(k.guarded)` already holds there"),
+    *(("ibt/synth/relational.py",
+       "states = np.concatenate([np.asarray(rows, dtype=np.float32).reshape(-1, "
+       "task.n_features),",
+       f"states = np.concatenate([np.asarray(rows, dtype=np.float32).reshape({size}, "
+       "task.n_features),",
+       "NumPy (the pinned 2.x) reads any negative size as the one inferred dimension, an "
+       "empty list of rows included") for size in ("~1", "-2")),
+    ("ibt/synth/decision_list_exact.py",
+     "keep = lit.threshold == hi if lit.le else lit.threshold == lo",
+     "keep = lit.threshold <= hi if lit.le else lit.threshold == lo",
+     "`hi` is the least threshold of the feature's `<=` literals, this one's among them, so "
+     "its threshold is at least `hi`: `<= hi` holds exactly where `== hi` does"),
+    ("ibt/synth/decision_list_exact.py",
+     "keep = lit.threshold == hi if lit.le else lit.threshold == lo",
+     "keep = lit.threshold == hi if lit.le else lit.threshold is lo",
+     "`lo` is the threshold object of the feature's first `>` literal with the greatest "
+     "threshold (`max` returns the first of equal arguments), which `is` keeps; a later `>` "
+     "literal of the feature with an equal threshold equals that literal and is dropped "
+     "as a repeat either way"),
+    *(("ibt/synth/decision_list.py",
+       'frame["tree_splits"] = (frame["tree_nodes"] - 1) // 2',
+       f'frame["tree_splits"] = (frame["tree_nodes"] {op}) // 2',
+       "a binary tree's node count is odd (`2 * splits + 1`), so floor division by 2 gives "
+       "the same splits from `nodes` as from `nodes - 1`") for op in ("- 0", "** 1")),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',
