@@ -73,21 +73,6 @@ def test_the_earliest_of_equally_small_candidates_wins():
     assert result.rule_sets[-1].terms == ((),)
 
 
-def test_imitation_bt_wins_where_it_is_smaller():
-    """A tree where Imitation-BT's BT is the smallest candidate: the result is that BT, with
-    its rule sets and default."""
-    for seed in range(40):
-        tree = tree_of(seed, 12, 4)
-        result = decision_list_bt(tree, TOY, **FAST)
-        if result.search["winner"] == "imitation-bt":
-            break
-    else:
-        pytest.skip("no tree among these where Imitation-BT's BT wins")
-    paper = imitation_bt(tree, TOY)
-    assert result.bt.root == paper.bt.root
-    assert (result.rule_sets, result.default_action) == (paper.rule_sets, paper.default_action)
-
-
 def test_a_tree_testing_a_feature_beyond_the_task_is_refused_from_the_first_one_over():
     tree = tree_of(1, 10, 3)
     tested = int(tree.tree_.feature.max())
