@@ -36,11 +36,8 @@ from ibt.synth.decision_list import decision_list_bt
 from ibt.synth.imitation import NotEquivalentError, imitation_bt, rules_frame, verify
 from ibt.synth.registry import SYNTHESISERS
 from ibt.synth.relational import augmented_task, verification_states
-from ibt.tasks.catalogue import Task
+from tests.fixtures.relational_line import LINE
 
-LINE = Task(name="line", gym_id="none", feature_names=("x", "vx", "target"),
-            action_names=("left", "stay", "right"), low=(-2.0, -1.0, -2.0),
-            high=(2.0, 1.0, 2.0))
 DIFF = LinearForm(0, 2, 1.0, -1.0)  # x - target
 
 

@@ -37,11 +37,9 @@ from ibt.synth.relational import (
     verify_relational,
 )
 from ibt.tasks.catalogue import Task
+from tests.fixtures.relational_line import LINE
 from tests.fixtures.toy_synthesiser import tree_shaped_bt
 
-LINE = Task(name="line", gym_id="none", feature_names=("x", "vx", "target"),
-            action_names=("left", "stay", "right"), low=(-2.0, -1.0, -2.0),
-            high=(2.0, 1.0, 2.0))
 FORMS = (LinearForm(0, 2, 1.0, -1.0), LinearForm(0, 1, 0.5, 1.0))  # x - target, x/2 + vx
 FMAP = FeatureMap(3, FORMS)
 
