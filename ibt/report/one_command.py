@@ -36,7 +36,8 @@ def options_of(row: Any) -> str:
     if pd.notna(row.max_nodes) and str(row.max_nodes) != "":
         parts.append(f"--max-nodes {int(float(row.max_nodes))}")
     parts.append(f"--time {row.time_limit}")
-    jobs, cpus = getattr(row, "jobs", None), getattr(row, "cpus", None)
+    jobs: Any = getattr(row, "jobs", None)
+    cpus: Any = getattr(row, "cpus", None)
     if pd.notna(jobs) and pd.notna(cpus) and int(float(jobs)) < int(float(cpus)):
         parts.append(f"--jobs {int(float(jobs))}")
     return " ".join(parts)
