@@ -57,7 +57,8 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/executors.py": ("tests/test_executors_law.py", "tests/test_mutants.py",
                             "tests/test_bt.py", "tests/test_nonfinite.py"),
     "ibt/bt/model.py": ("tests/test_bt_model_law.py", "tests/test_executors_law.py",
-                        "tests/test_bt.py",
+                        "tests/test_bt.py", "tests/test_linear_law.py",
+                        "tests/test_controller_bt_law.py",
                         "tests/test_nonfinite.py", "tests/test_mutants.py"),
     # the proof's parts first, then BTs it proves or refuses, then its relational gaps
     "ibt/bt/coverage.py": (
