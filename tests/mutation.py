@@ -81,6 +81,24 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/json_io.py": ("tests/test_json_io.py",),
     # merging leaves into commands on hand-made trees; its importers distil an expert's tree
     "ibt/synth/commands.py": ("tests/test_commands.py",),
+    # the route and its verifier on small relational trees (seconds); the importers run the
+    # CLI, the grid, the engines or every synthesiser on relational trees
+    "ibt/synth/relational.py": ("tests/test_synth_relational.py",),
+    # the exact region arithmetic against brute force, then the synthesis's own tests
+    "ibt/synth/decision_list_exact.py": (
+        "tests/test_decision_list_exact.py",
+        "tests/test_decision_list.py::test_decides_like_is_exact_where_sampling_is_not",
+        "tests/test_decision_list.py::test_simplify_and_factoring_keep_every_decision"),
+    # the winner and what it reports on small trees, then the size table; the other tests of
+    # tests/test_decision_list.py read committed trees or run the CLI (minutes a mutant)
+    "ibt/synth/decision_list.py": (
+        "tests/test_decision_list_winner.py",
+        "tests/test_decision_list.py::test_size_table_reads_the_synthesis_rows",
+        "tests/test_decision_list.py::test_single_leaf_and_relabelled_trees"),
+    # factoring against brute force and hand-worked factorings
+    "ibt/synth/decision_list_factoring.py": (
+        "tests/test_decision_list_factoring.py",
+        "tests/test_decision_list.py::test_simplify_and_factoring_keep_every_decision"),
     "ibt/synth/imitation.py": ("tests/test_verification_law.py", "tests/test_mutants.py",
                                "tests/test_synthesis.py"),
     "ibt/synth/rules.py": ("tests/test_rules_logic.py", "tests/test_verification_law.py",
@@ -232,6 +250,30 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
      "`u_f` below 1 already: the bound 1 or 2 never binds where `s > 0`, so the deepest "
      "margin and the points that reach it are the same (among several, which one is returned "
      "is the solver's choice either way)"),
+    *(("ibt/synth/relational.py",
+       "states = np.concatenate([np.asarray(rows, dtype=np.float32).reshape(-1, "
+       "task.n_features),",
+       f"states = np.concatenate([np.asarray(rows, dtype=np.float32).reshape({size}, "
+       "task.n_features),",
+       "NumPy (the pinned 2.x) reads any negative size as the one inferred dimension, an "
+       "empty list of rows included") for size in ("~1", "-2")),
+    ("ibt/synth/decision_list_exact.py",
+     "keep = lit.threshold == hi if lit.le else lit.threshold == lo",
+     "keep = lit.threshold <= hi if lit.le else lit.threshold == lo",
+     "`hi` is the least threshold of the feature's `<=` literals, this one's among them, so "
+     "its threshold is at least `hi`: `<= hi` holds exactly where `== hi` does"),
+    ("ibt/synth/decision_list_exact.py",
+     "keep = lit.threshold == hi if lit.le else lit.threshold == lo",
+     "keep = lit.threshold == hi if lit.le else lit.threshold is lo",
+     "`lo` is the threshold object of the feature's first `>` literal with the greatest "
+     "threshold (`max` returns the first of equal arguments), which `is` keeps; a later `>` "
+     "literal of the feature with an equal threshold equals that literal and is dropped "
+     "as a repeat either way"),
+    *(("ibt/synth/decision_list.py",
+       'frame["tree_splits"] = (frame["tree_nodes"] - 1) // 2',
+       f'frame["tree_splits"] = (frame["tree_nodes"] {op}) // 2',
+       "a binary tree's node count is odd (`2 * splits + 1`), so floor division by 2 gives "
+       "the same splits from `nodes` as from `nodes - 1`") for op in ("- 0", "** 1")),
     *(("ibt/engine/worker_progress.py",
        'self.bars.append(tqdm(total=0, bar_format="{desc}", leave=False,',
        f'self.bars.append(tqdm(total={total}, bar_format="{{desc}}", leave=False,',

@@ -185,6 +185,7 @@ def test_size_table_reads_the_synthesis_rows():
     assert table.loc[0, "Imitation-BT conditions"] == 41
     assert table.loc[0, "decision-list conditions"] == 16
     assert table.loc[0, "nodes / Imitation-BT"] == round(42 / 62, 2)
+    assert table.loc[0, "conditions / splits"] == round(16 / 15, 2)
 
 
 def _committed_tree(task: str, algo: str, seed: int) -> DecisionTreeClassifier:
