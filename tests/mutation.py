@@ -280,6 +280,12 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
        "a line's bar shows `{desc}` alone and never advances: its total feeds only the "
        "fraction, rate and time left that this format leaves out, so the drawn text is the "
        "same (checked with tqdm 4.70 for totals 0, 1 and -1)") for total in (1, -1)),
+    ("ibt/bt/model.py",
+     "if len(terms) > MAX_TERMS or len(set(features)) != len(features):",
+     "if len(terms) > MAX_TERMS or len(set(features)) is not len(features):",
+     "the comparison is reached only where `len(terms) <= MAX_TERMS` (4), so both lengths are "
+     "at most 4, inside CPython's cache of small integers (-5 to 256, one object each): "
+     "`is not` and `!=` agree (unlike `checked_names`' lengths, which a test takes past 256)"),
 )
 
 #: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.
