@@ -57,7 +57,8 @@ TESTS_OF: dict[str, tuple[str, ...]] = {
     "ibt/bt/executors.py": ("tests/test_executors_law.py", "tests/test_mutants.py",
                             "tests/test_bt.py", "tests/test_nonfinite.py"),
     "ibt/bt/model.py": ("tests/test_bt_model_law.py", "tests/test_executors_law.py",
-                        "tests/test_bt.py",
+                        "tests/test_bt.py", "tests/test_linear_law.py",
+                        "tests/test_controller_bt_law.py",
                         "tests/test_nonfinite.py", "tests/test_mutants.py"),
     # the proof's parts first, then BTs it proves or refuses, then its relational gaps
     "ibt/bt/coverage.py": (
@@ -279,6 +280,12 @@ EQUIVALENT: tuple[tuple[str, str, str, str], ...] = (
        "a line's bar shows `{desc}` alone and never advances: its total feeds only the "
        "fraction, rate and time left that this format leaves out, so the drawn text is the "
        "same (checked with tqdm 4.70 for totals 0, 1 and -1)") for total in (1, -1)),
+    ("ibt/bt/model.py",
+     "if len(terms) > MAX_TERMS or len(set(features)) != len(features):",
+     "if len(terms) > MAX_TERMS or len(set(features)) is not len(features):",
+     "the comparison is reached only where `len(terms) <= MAX_TERMS` (4), so both lengths are "
+     "at most 4, inside CPython's cache of small integers (-5 to 256, one object each): "
+     "`is not` and `!=` agree (unlike `checked_names`' lengths, which a test takes past 256)"),
 )
 
 #: Why the keyword-only ``*`` of a signature mutated into ``/`` changes nothing.

@@ -1,7 +1,9 @@
 """Linear forms on their own (ibt.bt.linear): a form's value is its formula summed left to right
 in double, its weights are normal doubles, its texts and JSON read as written, a feature map
 appends one derived column per form, and ``exact_threshold`` turns a float32 tree's threshold
-into the double that decides every double alike. Quick: no learner, no environment."""
+into the double that decides every double alike, and a linear command (``Commands.terms``) holds
+one list of terms per command and dimension whose weights keep it finite. Quick: no learner, no
+environment."""
 
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ from ibt.bt.linear import (
     script_sum,
     terms_text,
 )
+from ibt.bt.model import Commands
 
 F32_MAX = float(np.finfo(np.float32).max)
 weights = st.floats(-1e3, 1e3, allow_nan=False).filter(lambda w: abs(w) > 1e-3)
@@ -300,3 +303,40 @@ def test_the_exact_threshold_of_a_tie_follows_round_half_to_even():
     for bad in (math.inf, -math.inf, math.nan):
         with pytest.raises(ValueError, match="must be finite"):
             exact_threshold(bad)
+
+
+# ------------------------------------------------------------------------------ linear commands
+def _command(terms: tuple[tuple[int, float], ...]) -> Commands:
+    """One command of one dimension, ``0 + terms``."""
+    return Commands(("d",), ("u",), ((0.0,),), terms=((terms,),))
+
+
+@pytest.mark.parametrize("weights_", [(1e269,), (-1e269,), (1e269, -1e269), (1e269,) * 4,
+                                      (1e270,), (-1e300,), (1e269, 1e269, 1e270),
+                                      (1e308, 1e308)])
+def test_a_linear_command_is_refused_exactly_where_some_float32_observation_overflows_it(
+        weights_):
+    """Law: the command's weights are accepted exactly when its value stays finite on its worst
+    observation (each feature float32's largest magnitude, of its weight's sign), computed by
+    :meth:`Commands.evaluate`'s rule (mutant: ``FLOAT32_MAX * sum|w|`` as ``-``, finite until the
+    weights' sum itself overflows)."""
+    terms = tuple(enumerate(weights_))
+    worst = np.array([[math.copysign(F32_MAX, w) for w in weights_]])
+    overflows = not math.isfinite(sum(w * x for w, x in zip(weights_, worst[0], strict=True)))
+    if overflows:
+        with pytest.raises(ValueError, match="weights too large"):
+            _command(terms)
+    else:
+        value = _command(terms).evaluate(np.array([0]), worst)
+        assert np.isfinite(value).all()
+
+
+def test_linear_commands_hold_one_list_of_terms_per_command_and_dimension():
+    """Terms for more or fewer commands than ``values`` holds, or a command with more or fewer
+    dimensions than named, are refused (mutants: ``len(terms) != len(values)`` as ``<``, and its
+    ``or`` with the row check as ``and``)."""
+    one = (((0, 1.0),),)  # one command's terms: one dimension, ``1 * x[0]``
+    assert _command(((0, 1.0),)).terms == (one,)
+    for terms in ((one, one), (), ((((0, 1.0),), ()),)):
+        with pytest.raises(ValueError, match="one list of terms per command and dimension"):
+            Commands(("d",), ("u",), ((0.0,),), terms=terms)

@@ -6,6 +6,8 @@ The synthesisers themselves on relational trees are :mod:`tests.test_relational_
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -207,6 +209,9 @@ def test_the_verifier_states_are_a_state_per_region_its_crossings_and_the_random
     assert np.array_equal(check.states[-500:], random)
     head = check.states[:-500]
     assert len(set(TREE.apply(head).tolist())) == check.regions  # every leaf is reached
+    # what was tried is a record, not a scratchpad (mutant: the dataclass not frozen)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        check.regions = 0  # type: ignore[misc]
 
 
 def test_the_verifier_draws_twenty_thousand_random_states_with_seed_zero_by_default():
