@@ -113,3 +113,27 @@ def test_sigterm_exits_143_with_one_line_and_leaves_no_file(tmp_path):
     assert proc.returncode == 143, stderr
     assert len(stderr.splitlines()) == 1 and stderr.startswith("terminated (SIGTERM)")
     assert list(out.iterdir()) == []
+
+
+def test_sigterm_inside_an_import_is_sent_again_and_raised_after_it(tmp_path, monkeypatch):
+    """Raised inside an import, the stop could cross a C extension's initialisation and abort
+    the process; there the handler sends the signal again instead, and raises outside one."""
+    import importlib
+
+    from ibt.signals import Terminated
+
+    cli_main = importlib.import_module("ibt.cli.main")  # ``ibt.cli.main`` names its function
+
+    (tmp_path / "frame_of_an_import.py").write_text("import sys\nFRAME = sys._getframe()\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import frame_of_an_import  # its module code ran inside the import machinery
+
+    sent: list[tuple[int, int]] = []
+    monkeypatch.setattr(os, "kill", lambda pid, signum: sent.append((pid, signum)))
+    cli_main._terminate(signal.SIGTERM, frame_of_an_import.FRAME)  # no raise
+    deadline = time.monotonic() + 5.0
+    while not sent and time.monotonic() < deadline:
+        time.sleep(cli_main.REDELIVERY_S)
+    assert sent == [(os.getpid(), signal.SIGTERM)]
+    with pytest.raises(Terminated):
+        cli_main._terminate(signal.SIGTERM, sys._getframe())

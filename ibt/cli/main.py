@@ -291,7 +291,34 @@ def _import_env_module(module: str) -> None:
                          "environments") from None
 
 
+#: the code of Python's import machinery, as frames name it
+_IMPORT_MACHINERY = "<frozen importlib._bootstrap"
+#: seconds before a SIGTERM that arrived inside an import is delivered again
+REDELIVERY_S = 0.05
+
+
+def _importing(frame: Any) -> bool:
+    """Whether ``frame`` runs inside an import (one of its callers is the import machinery)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith(_IMPORT_MACHINERY):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _terminate(signum: int, frame: Any) -> None:
+    """SIGTERM's handler: raise :class:`Terminated` where the process is, except inside an
+    import, where the exception can cross a C extension's initialisation (torch's, through
+    pybind11), which aborts the process (exit -6, no message) instead of unwinding: there the
+    signal is sent again shortly, to be raised once the import is done."""
+    import os
+    import threading
+
+    if _importing(frame):
+        timer = threading.Timer(REDELIVERY_S, os.kill, (os.getpid(), signum))
+        timer.daemon = True
+        timer.start()
+        return
     raise Terminated
 
 

@@ -241,11 +241,12 @@ def ladder_text(rec: Recommendation) -> list[str]:
     among its restarts."""
     ladder = rec.ladder
     budget = f" of {rec.time_limit:.0f}" if rec.time_limit is not None else ""  # a replay's
-    how = {"time": f"{rec.time_stop}, so it stopped",
-           "interrupted": "Ctrl-C stopped it", "terminated": "SIGTERM stopped it"}
     lines = ["## How the search went", ""]
     if ladder.stopped:
-        lines += [f"**Stopped early**: {how.get(ladder.stopped, ladder.stopped)} after "
+        how = (f"{rec.time_stop}, so it stopped" if ladder.stopped == "time" else
+               {"interrupted": "Ctrl-C stopped it", "terminated": "SIGTERM stopped it"}.get(
+                   ladder.stopped, ladder.stopped))
+        lines += [f"**Stopped early**: {how} after "
                   f"{rec.elapsed:.0f}{budget} s; this report covers the {len(ladder.steps)} "
                   "steps done (the recommendation is the best BT among them, confirmed as "
                   f"below). Left undone: {', '.join(ladder.skipped) or 'nothing'}. Where a "
